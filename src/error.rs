@@ -1,0 +1,25 @@
+//! The library's error type. Messages are lower case and name the file, key or frame.
+
+use std::path::PathBuf;
+
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum Error {
+    #[error("{}: {source}", path.display())]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{}", .0.iter().map(|e| e.to_string()).collect::<Vec<_>>().join("\n"))]
+    Config(Vec<crate::optics::ConfigError>),
+    #[error("{0}")]
+    Invalid(String),
+}
+
+pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+impl From<crate::optics::ConfigError> for Error {
+    fn from(e: crate::optics::ConfigError) -> Self {
+        Error::Config(vec![e])
+    }
+}

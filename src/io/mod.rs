@@ -1,0 +1,9 @@
+//! File formats and safe writing: atomic files, `.npy`, OpenEXR, PNG.
+
+pub mod atomic;
+pub mod exr;
+pub mod font;
+pub mod npy;
+pub mod png;
+
+pub use atomic::write_atomic;

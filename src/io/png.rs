@@ -1,0 +1,56 @@
+//! 8-bit RGB PNG writing and reading (the `png` crate), plus tone mapping helpers.
+
+use std::io::Write;
+
+/// Writes interleaved 8-bit RGB.
+pub fn write_rgb8(
+    w: &mut dyn Write,
+    width: usize,
+    height: usize,
+    rgb: &[u8],
+) -> std::io::Result<()> {
+    assert_eq!(rgb.len(), width * height * 3);
+    let mut enc = png::Encoder::new(w, width as u32, height as u32);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    enc.set_compression(png::Compression::Fast);
+    let mut wr = enc.write_header().map_err(std::io::Error::other)?;
+    wr.write_image_data(rgb).map_err(std::io::Error::other)?;
+    wr.finish().map_err(std::io::Error::other)
+}
+
+/// Reads a PNG into interleaved 8-bit RGB: (width, height, data). Grey and alpha are converted;
+/// 16-bit samples are rounded to 8 bits.
+pub fn read_rgb8(bytes: &[u8]) -> Result<(usize, usize, Vec<u8>), String> {
+    let mut dec = png::Decoder::new(std::io::Cursor::new(bytes));
+    dec.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
+    let mut r = dec.read_info().map_err(|e| e.to_string())?;
+    let mut buf = vec![0; r.output_buffer_size().ok_or("png too large")?];
+    let info = r.next_frame(&mut buf).map_err(|e| e.to_string())?;
+    let (w, h) = (info.width as usize, info.height as usize);
+    let px = &buf[..info.buffer_size()];
+    let rgb = match info.color_type {
+        png::ColorType::Rgb => px.to_vec(),
+        png::ColorType::Rgba => px
+            .chunks_exact(4)
+            .flat_map(|p| [p[0], p[1], p[2]])
+            .collect(),
+        png::ColorType::Grayscale => px.iter().flat_map(|&g| [g, g, g]).collect(),
+        png::ColorType::GrayscaleAlpha => px
+            .chunks_exact(2)
+            .flat_map(|p| [p[0], p[0], p[0]])
+            .collect(),
+        png::ColorType::Indexed => return Err("indexed png not expanded".into()),
+    };
+    Ok((w, h, rgb))
+}
+
+/// sRGB encoding of linear light in [0, 1].
+pub fn srgb_encode(v: f32) -> f32 {
+    let v = v.clamp(0.0, 1.0);
+    if v <= 0.003_130_8 {
+        12.92 * v
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    }
+}

@@ -1,0 +1,16 @@
+//! `pipeline`: motion deblurring with a spatiotemporally phase-coded camera
+//! (Elmalem, Giryes and Marom). A ring phase mask in the aperture plus a focus sweep during the
+//! exposure colours the blur of a moving point along its path (blue, green, red), so a network
+//! can read the direction and extent of motion and undo it.
+//!
+//! - [`optics`]: the pupil, PSFs on the pixel grid, and the five cameras (pure math).
+//! - [`io`]: atomic writes, `.npy`, OpenEXR, PNG.
+//! - [`psfcmd`]: `pipeline psf`, which computes PSFs and writes them for people and tools.
+
+pub mod cli;
+pub mod error;
+pub mod io;
+pub mod optics;
+pub mod psfcmd;
+
+pub use error::{Error, Result};

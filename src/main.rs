@@ -1,0 +1,16 @@
+//! The `pipeline` binary: parse the command line, run, map errors to exit codes
+//! (0 ok, 1 the work failed, 2 usage or configuration error).
+
+use clap::Parser;
+
+fn main() {
+    let cli = pipeline::cli::Cli::parse();
+    if let Err(e) = pipeline::cli::run(cli) {
+        let code = match e.downcast_ref::<pipeline::Error>() {
+            Some(pipeline::Error::Config(_)) => 2,
+            _ => 1,
+        };
+        eprintln!("error: {e:#}");
+        std::process::exit(code);
+    }
+}

@@ -1,0 +1,17 @@
+//! The physical model: pupil, PSFs and cameras. Plain math: no IO, no threads beyond the
+//! kernel builder's scoped workers, no channels.
+//!
+//! - [`psf`]: the pupil with its phase rings, the intensity PSF per colour on the pixel grid.
+//! - [`camera`]: the five cameras, each turning a window of N sub-frames into N kernels.
+//! - [`config`]: `[optics]` and `[camera]` with the paper's defaults.
+
+pub mod camera;
+pub mod config;
+pub mod psf;
+
+pub use camera::{CacheStats, Camera, SubframeKernel};
+pub use config::{
+    Axis, CameraConfig, CameraKind, ConfigError, Dispersion, OpticsConfig, PsiSchedule, Ring,
+    Spectrum,
+};
+pub use psf::{Lens, Psf};
