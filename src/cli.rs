@@ -29,6 +29,24 @@ pub enum Command {
         after_help = "Examples:\n  pipeline psf --psi 0:8:9 --out strip.png            lens PSF of the coded camera at 9 psi values\n  pipeline psf --psi 0,4,8 --out psfs.npy             (3, H, W, 3) float32, R G B, each channel sums to 1\n  pipeline psf --camera parabolic --window 9 --out k.png   the 9 sub-frame kernels of one exposure\n  pipeline psf --config optics.toml --psi 0:8:33      [optics] and [camera] tables from a file"
     )]
     Psf(PsfArgs),
+    /// Measure speed (medians of repeats); not part of the tests.
+    #[command(subcommand)]
+    Bench(BenchCommand),
+}
+
+#[derive(Subcommand, Debug)]
+pub enum BenchCommand {
+    /// Time to build the kernels of one window, cold (new camera) and from the cache.
+    Psf {
+        #[arg(long, value_enum, default_value_t = CameraKind::PhaseCoded)]
+        camera: CameraKind,
+        /// Sub-frames per window.
+        #[arg(long, default_value_t = 9, value_parser = clap::value_parser!(u16).range(1..=64))]
+        window: u16,
+        /// Repeats; the median is reported.
+        #[arg(long, default_value_t = 7, value_parser = clap::value_parser!(u16).range(1..=1000))]
+        repeats: u16,
+    },
 }
 
 #[derive(Args, Debug)]
@@ -51,7 +69,7 @@ pub struct PsfArgs {
     pub config: Option<PathBuf>,
     /// Airy radius (first dark ring) at 455 nm in video pixels; default from f = 12 mm,
     /// R = 1.14 mm, 1.25 um pixels: 2.34 px.
-    #[arg(long, value_parser = parse_positive)]
+    #[arg(long, value_parser = parse_positive, allow_hyphen_values = true)]
     pub airy_radius_px: Option<f64>,
     /// Spectral model of the colour channels.
     #[arg(long, value_enum)]
@@ -167,5 +185,24 @@ fn run_psf(a: PsfArgs) -> anyhow::Result<()> {
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Psf(a) => run_psf(a),
+        Command::Bench(BenchCommand::Psf {
+            camera,
+            window,
+            repeats,
+        }) => {
+            let r = crate::bench::psf(camera, window as usize, repeats as usize);
+            eprintln!(
+                "{} window {}: kernels {} px; cold {:.1} ms (median of {}), cached {:.2} us; ratio {:.0}x",
+                r.camera,
+                r.window,
+                r.kernel_px,
+                r.cold_ms_median,
+                r.repeats,
+                r.cached_us_median,
+                r.cold_ms_median * 1e3 / r.cached_us_median.max(1e-9)
+            );
+            println!("{}", serde_json::to_string_pretty(&r)?);
+            Ok(())
+        }
     }
 }

@@ -7,6 +7,7 @@
 //! - [`io`]: atomic writes, `.npy`, OpenEXR, PNG.
 //! - [`psfcmd`]: `pipeline psf`, which computes PSFs and writes them for people and tools.
 
+pub mod bench;
 pub mod cli;
 pub mod error;
 pub mod io;

@@ -1,0 +1,62 @@
+//! `pipeline bench`: measured speed, kept apart from the tests. Each figure is the median of
+//! several repeats because the machines are shared and noisy.
+
+use crate::optics::{Camera, CameraConfig, CameraKind, OpticsConfig};
+use std::time::Instant;
+
+/// Median of a sample (sorts in place).
+pub fn median(v: &mut [f64]) -> f64 {
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n == 0 {
+        return f64::NAN;
+    }
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+/// Result of `bench psf`.
+#[derive(Debug, serde::Serialize)]
+pub struct PsfBench {
+    pub camera: &'static str,
+    pub window: usize,
+    pub repeats: usize,
+    pub kernel_px: usize,
+    pub cold_ms_median: f64,
+    pub cached_us_median: f64,
+    pub cold_ms_all: Vec<f64>,
+}
+
+/// Builds the kernels of one window with a fresh camera (cold) and again from its cache.
+pub fn psf(kind: CameraKind, window: usize, repeats: usize) -> PsfBench {
+    let optics = OpticsConfig::default();
+    let (mut cold, mut cached) = (Vec::new(), Vec::new());
+    let mut kernel_px = 0;
+    for _ in 0..repeats.max(1) {
+        let cam = Camera::new(&optics, &CameraConfig::new(kind));
+        let t = Instant::now();
+        let w = cam
+            .window(window)
+            .expect("default schedule fits any window");
+        cold.push(t.elapsed().as_secs_f64() * 1e3);
+        kernel_px = w[0].psf.size;
+        let t = Instant::now();
+        for _ in 0..100 {
+            std::hint::black_box(cam.window(window).expect("cached"));
+        }
+        cached.push(t.elapsed().as_secs_f64() * 1e6 / 100.0);
+    }
+    let cold_all = cold.clone();
+    PsfBench {
+        camera: kind.name(),
+        window,
+        repeats: repeats.max(1),
+        kernel_px,
+        cold_ms_median: median(&mut cold),
+        cached_us_median: median(&mut cached),
+        cold_ms_all: cold_all,
+    }
+}

@@ -1,0 +1,4 @@
+//! Integration tests: one binary (links once), one module per capability.
+
+mod common;
+mod psf_cli;
