@@ -9,9 +9,12 @@
 
 pub mod bench;
 pub mod cli;
+pub mod config;
 pub mod error;
+pub mod frame;
 pub mod io;
 pub mod optics;
 pub mod psfcmd;
+pub mod rng;
 
 pub use error::{Error, Result};

@@ -2,6 +2,9 @@
 
 pub mod atomic;
 pub mod exr;
+pub mod tar;
+#[cfg(feature = "ffmpeg")]
+pub mod video;
 pub mod font;
 pub mod npy;
 pub mod png;

@@ -7,7 +7,9 @@
 
 pub mod camera;
 pub mod config;
+pub mod fft;
 pub mod psf;
+pub mod transfer;
 
 pub use camera::{CacheStats, Camera, SubframeKernel};
 pub use config::{

@@ -1,0 +1,732 @@
+//! Pipeline files: TOML -> [`RawPipeline`] (serde, unknown keys rejected) -> [`Plan`] (a checked
+//! chain of stages). All semantic errors are reported in one pass, each naming its key.
+//!
+//! ```toml
+//! seed = 0
+//! [sources.video]
+//! type = "decode"
+//! paths = ["clips/*.mp4"]
+//! [transforms.linear]
+//! type = "linearize"
+//! inputs = ["video"]
+//! [transforms.blur]
+//! type = "coded_blur"
+//! inputs = ["linear"]
+//! [sinks.out]
+//! type = "shards"
+//! inputs = ["blur"]
+//! ```
+
+use crate::optics::config::Checker;
+use crate::optics::transfer::Curve;
+use crate::optics::{CameraConfig, ConfigError, OpticsConfig};
+use serde::{Deserialize, Serialize};
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+
+fn default_paths() -> Vec<String> {
+    Vec::new()
+}
+
+/// `type = "decode"`: video files FFmpeg reads.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DecodeConfig {
+    /// Files, folders (their video files) or file-name globs (`clips/*.mp4`).
+    #[serde(default = "default_paths")]
+    pub paths: Vec<String>,
+    /// Stop each video after this many frames (0: all).
+    #[serde(default)]
+    pub max_frames: u64,
+}
+
+/// `type = "stills"`: renders high-frame-rate clips from still photographs (or a procedural
+/// texture when `paths` is empty) with seeded camera shake and independently moving layers.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct StillsConfig {
+    /// PNG files or folders of them; empty: procedural textures (`clips` of them).
+    pub paths: Vec<String>,
+    /// Procedural clips when `paths` is empty.
+    pub clips: usize,
+    /// Frames rendered per clip.
+    pub frames: u64,
+    /// Nominal frame rate written to the report.
+    pub fps: f64,
+    /// Output frame size [width, height]; for photos, the centre crop (0: the photo's size).
+    pub size: [usize; 2],
+    /// Standard deviation of the camera's velocity change per frame, pixels.
+    pub shake_px: f64,
+    /// Moving layers pasted over the background.
+    pub layers: usize,
+    /// Largest layer speed, pixels per frame.
+    pub layer_speed_px: f64,
+}
+
+impl Default for StillsConfig {
+    fn default() -> Self {
+        StillsConfig { paths: Vec::new(), clips: 2, frames: 36, fps: 240.0, size: [256, 192], shake_px: 0.15, layers: 3, layer_speed_px: 2.0 }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum SourceConfig {
+    Decode(DecodeConfig),
+    Stills(StillsConfig),
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LinearizeConfig {
+    pub inputs: Vec<String>,
+    #[serde(default = "default_curve")]
+    pub curve: Curve,
+}
+
+fn default_curve() -> Curve {
+    Curve::Srgb
+}
+
+/// `type = "coded_blur"`: windows of N frames through a camera.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BlurConfig {
+    pub inputs: Vec<String>,
+    /// Sub-frames per window (1 to 64).
+    #[serde(default = "default_window")]
+    pub window: usize,
+    /// Frames between window starts (default: the window, no overlap).
+    #[serde(default)]
+    pub stride: Option<usize>,
+    #[serde(default)]
+    pub camera: CameraConfig,
+    #[serde(default)]
+    pub optics: OpticsConfig,
+    /// Worker threads for the FFTs (0: all cores).
+    #[serde(default)]
+    pub threads: usize,
+}
+
+fn default_window() -> usize {
+    9
+}
+
+/// Noise sigma: fixed, or drawn per window from [low, high].
+#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq)]
+#[serde(untagged)]
+pub enum Sigma {
+    Fixed(f64),
+    Range([f64; 2]),
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NoiseConfig {
+    pub inputs: Vec<String>,
+    /// AWGN sigma on the 0-255 scale, added after re-encoding, before clipping and quantising.
+    #[serde(default = "default_sigma")]
+    pub sigma: Sigma,
+}
+
+fn default_sigma() -> Sigma {
+    Sigma::Range([0.0, 9.0])
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Placement {
+    Random,
+    Grid,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PatchesConfig {
+    pub inputs: Vec<String>,
+    #[serde(default = "default_patch")]
+    pub size: usize,
+    /// Patches per window (grid: at most this many; 0 with grid: all).
+    #[serde(default = "default_per_window")]
+    pub per_window: usize,
+    #[serde(default = "default_placement")]
+    pub placement: Placement,
+    /// Cut patches (plus the kernel margin) before blurring: the same pixels for less work.
+    #[serde(default = "default_true")]
+    pub crop_first: bool,
+}
+
+fn default_patch() -> usize {
+    128
+}
+fn default_per_window() -> usize {
+    8
+}
+fn default_placement() -> Placement {
+    Placement::Random
+}
+fn default_true() -> bool {
+    true
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum TransformConfig {
+    Linearize(LinearizeConfig),
+    CodedBlur(BlurConfig),
+    Noise(NoiseConfig),
+    Patches(PatchesConfig),
+}
+
+/// `type = "shards"`: WebDataset tar shards plus `manifest.json`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ShardsConfig {
+    pub inputs: Vec<String>,
+    #[serde(default = "default_dir")]
+    pub dir: String,
+    #[serde(default = "default_prefix")]
+    pub prefix: String,
+    #[serde(default = "default_max_samples")]
+    pub max_samples_per_shard: usize,
+}
+
+fn default_dir() -> String {
+    "out".into()
+}
+fn default_prefix() -> String {
+    "train".into()
+}
+fn default_max_samples() -> usize {
+    1000
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ImageFormat {
+    Png,
+    Exr,
+}
+
+/// `type = "frames"`: full-size pairs in the GoPro layout (`blur_gamma/`, `sharp/`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FramesConfig {
+    pub inputs: Vec<String>,
+    #[serde(default = "default_dir")]
+    pub dir: String,
+    /// png: 8-bit encoded; exr: linear light, float.
+    #[serde(default = "default_format")]
+    pub format: ImageFormat,
+}
+
+fn default_format() -> ImageFormat {
+    ImageFormat::Png
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case")]
+pub enum SinkConfig {
+    Shards(ShardsConfig),
+    Frames(FramesConfig),
+}
+
+/// `[run]`: how the graph runs.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct RunConfig {
+    /// Capacity of each bounded channel between stages (backpressure).
+    pub channel_capacity: usize,
+}
+
+impl Default for RunConfig {
+    fn default() -> Self {
+        RunConfig { channel_capacity: 4 }
+    }
+}
+
+/// A pipeline file as written.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawPipeline {
+    #[serde(default)]
+    pub seed: u64,
+    #[serde(default)]
+    pub run: RunConfig,
+    #[serde(default)]
+    pub sources: BTreeMap<String, SourceConfig>,
+    #[serde(default)]
+    pub transforms: BTreeMap<String, TransformConfig>,
+    #[serde(default)]
+    pub sinks: BTreeMap<String, SinkConfig>,
+}
+
+/// What flows on an edge; checked before any thread starts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    EncodedFrames,
+    LinearFrames,
+    Samples,
+}
+
+impl Kind {
+    fn name(self) -> &'static str {
+        match self {
+            Kind::EncodedFrames => "encoded frames",
+            Kind::LinearFrames => "linear frames",
+            Kind::Samples => "samples",
+        }
+    }
+}
+
+/// One stage of a checked plan.
+#[derive(Debug, Clone)]
+pub enum StagePlan {
+    Source(SourceConfig),
+    Transform(TransformConfig),
+    Sink(SinkConfig),
+}
+
+/// A checked chain: source, transforms in order, sink.
+#[derive(Debug, Clone)]
+pub struct Plan {
+    pub seed: u64,
+    pub run: RunConfig,
+    /// (name, stage) from source to sink.
+    pub stages: Vec<(String, StagePlan)>,
+    /// The resolved file, for the report.
+    pub resolved: toml::Table,
+}
+
+impl Plan {
+    pub fn source(&self) -> &SourceConfig {
+        match &self.stages[0].1 {
+            StagePlan::Source(s) => s,
+            _ => unreachable!("a plan starts with its source"),
+        }
+    }
+    pub fn sink(&self) -> &SinkConfig {
+        match &self.stages.last().expect("non-empty plan").1 {
+            StagePlan::Sink(s) => s,
+            _ => unreachable!("a plan ends with its sink"),
+        }
+    }
+    pub fn sink_mut(&mut self) -> &mut SinkConfig {
+        match &mut self.stages.last_mut().expect("non-empty plan").1 {
+            StagePlan::Sink(s) => s,
+            _ => unreachable!("a plan ends with its sink"),
+        }
+    }
+    pub fn blur(&self) -> Option<&BlurConfig> {
+        self.stages.iter().find_map(|(_, s)| match s {
+            StagePlan::Transform(TransformConfig::CodedBlur(b)) => Some(b),
+            _ => None,
+        })
+    }
+    pub fn patches(&self) -> Option<&PatchesConfig> {
+        self.stages.iter().find_map(|(_, s)| match s {
+            StagePlan::Transform(TransformConfig::Patches(p)) => Some(p),
+            _ => None,
+        })
+    }
+    /// The output folder of the sink.
+    pub fn out_dir(&self) -> PathBuf {
+        match self.sink() {
+            SinkConfig::Shards(s) => PathBuf::from(&s.dir),
+            SinkConfig::Frames(f) => PathBuf::from(&f.dir),
+        }
+    }
+    pub fn set_out_dir(&mut self, dir: &Path) {
+        let d = dir.to_string_lossy().into_owned();
+        match self.sink_mut() {
+            SinkConfig::Shards(s) => s.dir = d,
+            SinkConfig::Frames(f) => f.dir = d,
+        }
+    }
+}
+
+/// Applies `key.path=value` overrides to a TOML table. The value is read as TOML (`3`,
+/// `[0, 9]`, `"x"`, `true`) and as a bare string when that fails.
+///
+/// # Errors
+/// A `--set` without `=`, or a path through a value that is not a table.
+pub fn apply_sets(table: &mut toml::Table, sets: &[String]) -> Result<(), String> {
+    for s in sets {
+        let (path, value) = s.split_once('=').ok_or_else(|| format!("--set {s:?}: expected key.path=value"))?;
+        let value = value.trim();
+        let parsed: toml::Value = toml::from_str::<toml::Table>(&format!("v = {value}"))
+            .ok()
+            .and_then(|mut t| t.remove("v"))
+            .unwrap_or_else(|| toml::Value::String(value.to_string()));
+        let keys: Vec<&str> = path.trim().split('.').collect();
+        let mut cur = &mut *table;
+        for (i, k) in keys.iter().enumerate() {
+            if i + 1 == keys.len() {
+                cur.insert(k.to_string(), parsed.clone());
+            } else {
+                let next = cur.entry(k.to_string()).or_insert_with(|| toml::Value::Table(toml::Table::new()));
+                cur = next.as_table_mut().ok_or_else(|| format!("--set {path}: {k} is not a table"))?;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Reads a pipeline file and applies overrides; syntax and unknown keys are errors naming
+/// the file, line and key.
+///
+/// # Errors
+/// See above.
+pub fn load(path: &Path, sets: &[String]) -> Result<toml::Table, crate::Error> {
+    let text = std::fs::read_to_string(path).map_err(|e| crate::Error::Io { path: path.to_path_buf(), source: e })?;
+    parse(&text, &path.display().to_string(), sets)
+}
+
+/// As [`load`], from text.
+///
+/// # Errors
+/// See [`load`].
+pub fn parse(text: &str, origin: &str, sets: &[String]) -> Result<toml::Table, crate::Error> {
+    let mut table: toml::Table = toml::from_str(text).map_err(|e| crate::Error::Invalid(format!("{origin}: {e}")))?;
+    apply_sets(&mut table, sets).map_err(crate::Error::Invalid)?;
+    Ok(table)
+}
+
+fn edit_distance(a: &str, b: &str) -> usize {
+    let b: Vec<char> = b.chars().collect();
+    let mut prev: Vec<usize> = (0..=b.len()).collect();
+    for (i, ca) in a.chars().enumerate() {
+        let mut cur = vec![i + 1];
+        for (j, cb) in b.iter().enumerate() {
+            cur.push((prev[j] + usize::from(ca != *cb)).min(prev[j + 1] + 1).min(cur[j] + 1));
+        }
+        prev = cur;
+    }
+    prev[b.len()]
+}
+
+fn inputs_of(t: &TransformConfig) -> &[String] {
+    match t {
+        TransformConfig::Linearize(c) => &c.inputs,
+        TransformConfig::CodedBlur(c) => &c.inputs,
+        TransformConfig::Noise(c) => &c.inputs,
+        TransformConfig::Patches(c) => &c.inputs,
+    }
+}
+
+fn sink_inputs(s: &SinkConfig) -> &[String] {
+    match s {
+        SinkConfig::Shards(c) => &c.inputs,
+        SinkConfig::Frames(c) => &c.inputs,
+    }
+}
+
+fn check_transform(name: &str, t: &TransformConfig) -> Vec<ConfigError> {
+    let prefix = format!("transforms.{name}");
+    let mut c = Checker::new(&prefix);
+    match t {
+        TransformConfig::Linearize(_) => {}
+        TransformConfig::CodedBlur(b) => {
+            c.range_usize("window", b.window, 1, 64);
+            if let Some(s) = b.stride {
+                c.range_usize("stride", s, 1, 4096);
+            }
+            c.range_usize("threads", b.threads, 0, 256);
+            c.errors.extend(b.camera.validate(&format!("{prefix}.camera")));
+            c.errors.extend(b.optics.validate(&format!("{prefix}.optics")));
+            if let Some(v) = &b.camera.psi_values {
+                if v.len() != b.window {
+                    c.fail("camera.psi_values", format!("has {} values but window is {}", v.len(), b.window));
+                }
+            }
+        }
+        TransformConfig::Noise(n) => match n.sigma {
+            Sigma::Fixed(s) => c.range("sigma", s, 0.0, 50.0),
+            Sigma::Range([a, b]) => {
+                c.range("sigma[0]", a, 0.0, 50.0);
+                c.range("sigma[1]", b, 0.0, 50.0);
+                if a > b {
+                    c.fail("sigma", format!("range [{a}, {b}] is reversed"));
+                }
+            }
+        },
+        TransformConfig::Patches(p) => {
+            c.range_usize("size", p.size, 8, 4096);
+            if p.placement == Placement::Random {
+                c.range_usize("per_window", p.per_window, 1, 4096);
+            }
+        }
+    }
+    c.errors
+}
+
+fn check_source(name: &str, s: &SourceConfig) -> Vec<ConfigError> {
+    let prefix = format!("sources.{name}");
+    let mut c = Checker::new(&prefix);
+    match s {
+        SourceConfig::Decode(_) => {}
+        SourceConfig::Stills(st) => {
+            c.range_usize("frames", st.frames as usize, 1, 1_000_000);
+            c.range("fps", st.fps, 1.0, 100_000.0);
+            c.range("shake_px", st.shake_px, 0.0, 50.0);
+            c.range_usize("layers", st.layers, 0, 64);
+            c.range("layer_speed_px", st.layer_speed_px, 0.0, 100.0);
+            if st.paths.is_empty() {
+                c.range_usize("clips", st.clips, 1, 100_000);
+                for (i, v) in st.size.iter().enumerate() {
+                    c.range_usize(&format!("size[{i}]"), *v, 16, 8192);
+                }
+            }
+        }
+    }
+    c.errors
+}
+
+fn check_sink(name: &str, s: &SinkConfig) -> Vec<ConfigError> {
+    let prefix = format!("sinks.{name}");
+    let mut c = Checker::new(&prefix);
+    match s {
+        SinkConfig::Shards(sh) => {
+            c.range_usize("max_samples_per_shard", sh.max_samples_per_shard, 1, 10_000_000);
+            if sh.prefix.is_empty() || sh.prefix.contains(['/', '.']) {
+                c.fail("prefix", format!("{:?} must be non-empty, without '/' or '.'", sh.prefix));
+            }
+        }
+        SinkConfig::Frames(_) => {}
+    }
+    c.errors
+}
+
+/// Checks a resolved table and builds the plan, or returns every error found.
+///
+/// # Errors
+/// Deserialisation errors (unknown keys, wrong types) come one at a time from serde; graph and
+/// value errors all at once.
+pub fn plan(table: toml::Table, origin: &str) -> Result<Plan, crate::Error> {
+    let raw: RawPipeline =
+        toml::Value::Table(table.clone()).try_into().map_err(|e: toml::de::Error| crate::Error::Invalid(format!("{origin}: {}", e.to_string().trim())))?;
+    let mut errs: Vec<ConfigError> = Vec::new();
+    let err = |key: String, message: String| ConfigError { key, message };
+    if raw.sources.len() != 1 {
+        errs.push(err("sources".into(), format!("needs exactly one source (found {})", raw.sources.len())));
+    }
+    if raw.sinks.len() != 1 {
+        errs.push(err("sinks".into(), format!("needs exactly one sink (found {})", raw.sinks.len())));
+    }
+    if !(1..=1024).contains(&raw.run.channel_capacity) {
+        errs.push(err("run.channel_capacity".into(), format!("{} is out of range (expected 1 to 1024)", raw.run.channel_capacity)));
+    }
+    for (n, s) in &raw.sources {
+        errs.extend(check_source(n, s));
+    }
+    for (n, t) in &raw.transforms {
+        errs.extend(check_transform(n, t));
+    }
+    for (n, s) in &raw.sinks {
+        errs.extend(check_sink(n, s));
+    }
+    // Wiring: every input names a stage; each stage feeds at most one other (a chain).
+    let names: Vec<&String> = raw.sources.keys().chain(raw.transforms.keys()).chain(raw.sinks.keys()).collect();
+    let mut consumer: BTreeMap<String, String> = BTreeMap::new();
+    let edges: Vec<(String, &[String])> = raw
+        .transforms
+        .iter()
+        .map(|(n, t)| (format!("transforms.{n}"), inputs_of(t)))
+        .chain(raw.sinks.iter().map(|(n, s)| (format!("sinks.{n}"), sink_inputs(s))))
+        .collect();
+    for (key, inputs) in &edges {
+        let short = key.split_once('.').map_or(key.as_str(), |(_, n)| n);
+        if inputs.len() != 1 {
+            errs.push(err(format!("{key}.inputs"), format!("needs exactly one input (found {}); stages form a chain", inputs.len())));
+            continue;
+        }
+        let input = &inputs[0];
+        if !names.iter().any(|n| *n == input) || raw.sinks.contains_key(input) {
+            let best = names.iter().filter(|n| !raw.sinks.contains_key(n.as_str())).min_by_key(|n| edit_distance(n, input));
+            let hint = best.filter(|b| edit_distance(b, input) <= 2).map(|b| format!(" (did you mean {b:?}?)")).unwrap_or_default();
+            errs.push(err(format!("{key}.inputs"), format!("input {input:?} doesn't match any source or transform{hint}")));
+            continue;
+        }
+        if let Some(prev) = consumer.insert(input.clone(), short.to_string()) {
+            errs.push(err(format!("{key}.inputs"), format!("{input:?} already feeds {prev:?}; fan-out is not supported")));
+        }
+    }
+    // Follow the chain from the source.
+    let mut stages: Vec<(String, StagePlan)> = Vec::new();
+    if errs.is_empty() {
+        let (sname, src) = raw.sources.iter().next().expect("one source");
+        stages.push((sname.clone(), StagePlan::Source(src.clone())));
+        let mut cur = sname.clone();
+        let mut seen = std::collections::BTreeSet::new();
+        while let Some(next) = consumer.get(&cur) {
+            if !seen.insert(next.clone()) {
+                errs.push(err("transforms".into(), format!("cycle detected through {next:?}")));
+                break;
+            }
+            if let Some(t) = raw.transforms.get(next) {
+                stages.push((next.clone(), StagePlan::Transform(t.clone())));
+            } else if let Some(s) = raw.sinks.get(next) {
+                stages.push((next.clone(), StagePlan::Sink(s.clone())));
+                break;
+            }
+            cur = next.clone();
+        }
+        let reached: Vec<&String> = stages.iter().map(|(n, _)| n).collect();
+        for n in raw.transforms.keys().chain(raw.sinks.keys()) {
+            if !reached.contains(&n) && errs.is_empty() {
+                errs.push(err(format!("{n}"), "is not connected to the source (a cycle or a dangling stage)".into()));
+            }
+        }
+        // Types along the chain.
+        let mut kind = Kind::EncodedFrames;
+        for (name, st) in stages.iter().skip(1) {
+            let (want, out): (&[Kind], Kind) = match st {
+                StagePlan::Transform(TransformConfig::Linearize(_)) => (&[Kind::EncodedFrames], Kind::LinearFrames),
+                StagePlan::Transform(TransformConfig::CodedBlur(_)) => (&[Kind::LinearFrames], Kind::Samples),
+                StagePlan::Transform(TransformConfig::Noise(_)) => (&[Kind::Samples], Kind::Samples),
+                StagePlan::Transform(TransformConfig::Patches(_)) => (&[Kind::Samples], Kind::Samples),
+                StagePlan::Sink(_) => (&[Kind::Samples], Kind::Samples),
+                StagePlan::Source(_) => unreachable!("one source"),
+            };
+            if !want.contains(&kind) {
+                errs.push(err(name.clone(), format!("data type mismatch: gets {} (expects {})", kind.name(), want[0].name())));
+                break;
+            }
+            kind = out;
+        }
+    }
+    if !errs.is_empty() {
+        return Err(crate::Error::Config(errs));
+    }
+    Ok(Plan { seed: raw.seed, run: raw.run, stages, resolved: table })
+}
+
+/// Expands the source's paths: files as given, folders to their files with the wanted
+/// extensions, `*` and `?` in the file name as globs. Sorted, without duplicates.
+///
+/// # Errors
+/// A path that does not exist or a glob that matches nothing, naming it.
+pub fn expand_paths(paths: &[String], exts: &[&str]) -> Result<Vec<PathBuf>, crate::Error> {
+    let mut out = Vec::new();
+    for p in paths {
+        let path = PathBuf::from(p);
+        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+        if name.contains(['*', '?']) {
+            let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+            let rd = std::fs::read_dir(dir).map_err(|e| crate::Error::Io { path: dir.to_path_buf(), source: e })?;
+            let before = out.len();
+            for e in rd.flatten() {
+                let n = e.file_name().to_string_lossy().into_owned();
+                if glob_match(&name, &n) {
+                    out.push(e.path());
+                }
+            }
+            if out.len() == before {
+                return Err(crate::Error::Invalid(format!("{p}: the pattern matches no file")));
+            }
+        } else if path.is_dir() {
+            let rd = std::fs::read_dir(&path).map_err(|e| crate::Error::Io { path: path.clone(), source: e })?;
+            for e in rd.flatten() {
+                let ext = e.path().extension().map(|x| x.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
+                if exts.contains(&ext.as_str()) {
+                    out.push(e.path());
+                }
+            }
+        } else {
+            out.push(path);
+        }
+    }
+    out.sort();
+    out.dedup();
+    Ok(out)
+}
+
+fn glob_match(pat: &str, s: &str) -> bool {
+    let (p, s): (Vec<char>, Vec<char>) = (pat.chars().collect(), s.chars().collect());
+    fn go(p: &[char], s: &[char]) -> bool {
+        match (p.first(), s.first()) {
+            (None, None) => true,
+            (Some('*'), _) => go(&p[1..], s) || (!s.is_empty() && go(p, &s[1..])),
+            (Some('?'), Some(_)) => go(&p[1..], &s[1..]),
+            (Some(a), Some(b)) if a == b => go(&p[1..], &s[1..]),
+            _ => false,
+        }
+    }
+    go(&p, &s)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const GOOD: &str = r#"
+seed = 3
+[sources.video]
+type = "stills"
+[transforms.linear]
+type = "linearize"
+inputs = ["video"]
+[transforms.blur]
+type = "coded_blur"
+inputs = ["linear"]
+[sinks.out]
+type = "shards"
+inputs = ["blur"]
+"#;
+
+    fn plan_of(text: &str, sets: &[&str]) -> Result<Plan, crate::Error> {
+        let sets: Vec<String> = sets.iter().map(|s| s.to_string()).collect();
+        plan(parse(text, "test.toml", &sets)?, "test.toml")
+    }
+
+    #[test]
+    fn a_chain_plans_in_order() {
+        let p = plan_of(GOOD, &[]).unwrap();
+        let names: Vec<&str> = p.stages.iter().map(|(n, _)| n.as_str()).collect();
+        assert_eq!(names, ["video", "linear", "blur", "out"]);
+        assert_eq!(p.seed, 3);
+    }
+
+    #[test]
+    fn a_typo_is_rejected_naming_the_key() {
+        let e = plan_of(&GOOD.replace("inputs = [\"linear\"]", "inputs = [\"linear\"]\nwindw = 9"), &[]).unwrap_err().to_string();
+        assert!(e.contains("windw") && e.contains("test.toml"), "{e}");
+        let e = plan_of(GOOD, &["transforms.blur.camera.typ=\"flutter\""]).unwrap_err().to_string();
+        assert!(e.contains("typ"), "{e}");
+    }
+
+    #[test]
+    fn every_value_error_comes_in_one_pass() {
+        let e = plan_of(GOOD, &["transforms.blur.window=99", "transforms.blur.optics.pupil_samples=2", "run.channel_capacity=0"]).unwrap_err().to_string();
+        for key in ["transforms.blur.window", "transforms.blur.optics.pupil_samples", "run.channel_capacity"] {
+            assert!(e.contains(key), "{key} missing from: {e}");
+        }
+    }
+
+    #[test]
+    fn wiring_errors_say_what_is_wrong() {
+        let e = plan_of(&GOOD.replace("inputs = [\"linear\"]", "inputs = [\"linaer\"]"), &[]).unwrap_err().to_string();
+        assert!(e.contains("did you mean \"linear\""), "{e}");
+        // linear <-> blur form a loop cut off from the source.
+        let cyc = GOOD.replace("inputs = [\"video\"]", "inputs = [\"blur\"]").replace("type = \"shards\"\ninputs = [\"blur\"]", "type = \"shards\"\ninputs = [\"video\"]");
+        let e = plan_of(&cyc, &[]).unwrap_err().to_string();
+        assert!(e.contains("not connected"), "{e}");
+        let e = plan_of(&GOOD.replace("inputs = [\"blur\"]", "inputs = [\"linear\"]").replace("inputs = [\"linear\"]\n[sinks", "inputs = [\"video\"]\n[sinks"), &[]);
+        assert!(e.is_err());
+        // blur fed encoded frames: a type mismatch.
+        let e = plan_of(&GOOD.replace("inputs = [\"linear\"]", "inputs = [\"video\"]").replace("[transforms.linear]\ntype = \"linearize\"\ninputs = [\"video\"]\n", ""), &[]).unwrap_err().to_string();
+        assert!(e.contains("data type mismatch"), "{e}");
+    }
+
+    #[test]
+    fn sets_parse_values_as_toml() {
+        let p = plan_of(GOOD, &["transforms.blur.window=11", "transforms.blur.camera.type=conventional"]).unwrap();
+        assert_eq!(p.blur().unwrap().window, 11);
+        assert_eq!(p.blur().unwrap().camera.kind, crate::optics::CameraKind::Conventional);
+    }
+
+    #[test]
+    fn globs_match_file_names() {
+        assert!(glob_match("*.mp4", "a.mp4") && !glob_match("*.mp4", "a.mkv") && glob_match("c?ip*", "clip_01.mov"));
+    }
+}

@@ -1,0 +1,166 @@
+//! Video decoding through FFmpeg's libraries (ffmpeg-next): whatever FFmpeg reads, 8 or more
+//! bits, frame-threaded, converted to 16-bit RGB with the stream's own matrix and range.
+
+use crate::frame::{Frame, FrameData, InputInfo};
+use ffmpeg_next as ff;
+use std::path::Path;
+
+/// Initialises FFmpeg once and keeps its logging to errors.
+pub fn init() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    ONCE.call_once(|| {
+        let _ = ff::init();
+        ff::util::log::set_level(ff::util::log::Level::Fatal);
+    });
+}
+
+pub struct VideoReader {
+    ictx: ff::format::context::Input,
+    decoder: ff::decoder::Video,
+    scaler: Option<ff::software::scaling::Context>,
+    stream: usize,
+    pub info: InputInfo,
+    decoded: ff::frame::Video,
+    rgb: ff::frame::Video,
+    flushed: bool,
+    done: bool,
+    pub frames_decoded: u64,
+}
+
+fn fmt_err(e: ff::Error) -> String {
+    e.to_string()
+}
+
+impl VideoReader {
+    /// Opens `path` and its best video stream.
+    ///
+    /// # Errors
+    /// A message without the path (the caller names the file): missing, not a video, no decoder.
+    pub fn open(path: &Path) -> Result<VideoReader, String> {
+        init();
+        if !path.exists() {
+            return Err("no such file".into());
+        }
+        let ictx = ff::format::input(&path).map_err(|e| format!("not a readable video ({})", fmt_err(e)))?;
+        let st = ictx.streams().best(ff::media::Type::Video).ok_or("no video stream")?;
+        let stream = st.index();
+        let rate = st.avg_frame_rate();
+        let fps = if rate.denominator() != 0 { rate.numerator() as f64 / rate.denominator() as f64 } else { 0.0 };
+        let announced = st.frames();
+        let mut ctx = ff::codec::context::Context::from_parameters(st.parameters()).map_err(fmt_err)?;
+        ctx.set_threading(ff::codec::threading::Config::kind(ff::codec::threading::Type::Frame));
+        let decoder = ctx.decoder().video().map_err(|e| format!("no decoder ({})", fmt_err(e)))?;
+        let codec = decoder.codec().map(|c| c.name().to_string()).unwrap_or_default();
+        let info = InputInfo {
+            width: decoder.width() as usize,
+            height: decoder.height() as usize,
+            fps,
+            frames_announced: (announced > 0).then_some(announced as u64),
+            codec,
+            pixel_format: format!("{:?}", decoder.format()).to_lowercase(),
+        };
+        if info.width == 0 || info.height == 0 {
+            return Err("video stream has no size".into());
+        }
+        Ok(VideoReader {
+            ictx,
+            decoder,
+            scaler: None,
+            stream,
+            info,
+            decoded: ff::frame::Video::empty(),
+            rgb: ff::frame::Video::empty(),
+            flushed: false,
+            done: false,
+            frames_decoded: 0,
+        })
+    }
+
+    fn convert(&mut self) -> Result<Frame, String> {
+        let (w, h) = (self.decoded.width(), self.decoded.height());
+        if self.scaler.is_none() {
+            let mut sc = ff::software::scaling::Context::get(self.decoded.format(), w, h, ff::format::Pixel::RGB48LE, w, h, ff::software::scaling::Flags::BILINEAR | ff::software::scaling::Flags::ACCURATE_RND | ff::software::scaling::Flags::FULL_CHR_H_INT)
+                .map_err(fmt_err)?;
+            set_colorspace(&mut sc, &self.decoded);
+            self.scaler = Some(sc);
+        }
+        self.scaler.as_mut().expect("scaler set").run(&self.decoded, &mut self.rgb).map_err(fmt_err)?;
+        let stride = self.rgb.stride(0);
+        let bytes = self.rgb.data(0);
+        let (w, h) = (w as usize, h as usize);
+        let mut out = Vec::with_capacity(w * h * 3);
+        for y in 0..h {
+            let row = &bytes[y * stride..y * stride + w * 6];
+            out.extend(row.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]])));
+        }
+        Ok(Frame { width: w, height: h, data: FrameData::Rgb48(out) })
+    }
+
+    /// The next frame, `None` at the end.
+    ///
+    /// # Errors
+    /// A damaged stream, naming the frame number where decoding failed.
+    pub fn next_frame(&mut self) -> Result<Option<Frame>, String> {
+        if self.done {
+            return Ok(None);
+        }
+        loop {
+            match self.decoder.receive_frame(&mut self.decoded) {
+                Ok(()) => {
+                    self.frames_decoded += 1;
+                    return self.convert().map(Some);
+                }
+                Err(ff::Error::Eof) => {
+                    self.done = true;
+                    return Ok(None);
+                }
+                Err(ff::Error::Other { errno }) if errno == ff::util::error::EAGAIN => {}
+                Err(e) => return Err(format!("decoding failed after frame {} ({})", self.frames_decoded, fmt_err(e))),
+            }
+            if self.flushed {
+                self.done = true;
+                return Ok(None);
+            }
+            let mut packet = ff::Packet::empty();
+            match packet.read(&mut self.ictx) {
+                Ok(()) => {
+                    if packet.stream() == self.stream {
+                        if let Err(e) = self.decoder.send_packet(&packet) {
+                            return Err(format!("damaged data after frame {} ({})", self.frames_decoded, fmt_err(e)));
+                        }
+                    }
+                }
+                Err(ff::Error::Eof) => {
+                    self.decoder.send_eof().map_err(fmt_err)?;
+                    self.flushed = true;
+                }
+                Err(e) => return Err(format!("reading failed after frame {} ({})", self.frames_decoded, fmt_err(e))),
+            }
+        }
+    }
+}
+
+/// Tells swscale which YUV matrix and range the source uses (BT.709 for HD streams that say so,
+/// BT.601 otherwise) and asks for full-range RGB.
+fn set_colorspace(sc: &mut ff::software::scaling::Context, frame: &ff::frame::Video) {
+    use ff::ffi;
+    let cs = match frame.color_space() {
+        ff::color::Space::BT709 => ffi::SWS_CS_ITU709,
+        ff::color::Space::BT2020NCL | ff::color::Space::BT2020CL => ffi::SWS_CS_BT2020,
+        ff::color::Space::SMPTE240M => ffi::SWS_CS_SMPTE240M,
+        ff::color::Space::FCC => ffi::SWS_CS_FCC,
+        _ => ffi::SWS_CS_DEFAULT,
+    };
+    let src_full = i32::from(frame.color_range() == ff::color::Range::JPEG || is_rgb_or_full(frame.format()));
+    // SAFETY: the context pointer is valid for the scaler's lifetime; the coefficient tables are
+    // static arrays owned by libswscale.
+    unsafe {
+        let table = ffi::sws_getCoefficients(cs as i32);
+        ffi::sws_setColorspaceDetails(sc.as_mut_ptr(), table, src_full, ffi::sws_getCoefficients(ffi::SWS_CS_DEFAULT as i32), 1, 0, 1 << 16, 1 << 16);
+    }
+}
+
+fn is_rgb_or_full(p: ff::format::Pixel) -> bool {
+    use ff::format::Pixel::*;
+    matches!(p, YUVJ420P | YUVJ422P | YUVJ444P)
+}

@@ -1,0 +1,282 @@
+//! 2-D convolution by real FFTs, with products summed in the frequency domain.
+//!
+//! A window of N sub-frames needs N forward transforms per channel but one inverse: the blurred
+//! image is `F^-1( sum_k F(img_k) F(psf_k) )`. Spectra are kept in a transposed layout
+//! (`wc` rows of `hp` complex values, `wc = wp / 2 + 1`) so that the column FFTs run over one
+//! contiguous buffer.
+//!
+//! ## Usage
+//! ```
+//! use pipeline::optics::fft::FftConv;
+//! let mut conv = FftConv::new(8, 8);
+//! let mut img = vec![0.0f32; 64];
+//! img[9] = 1.0;
+//! let kernel = vec![1.0f32]; // a 1 x 1 delta
+//! let ks = conv.kernel_spectrum(&kernel);
+//! let mut acc = conv.zero_spectrum();
+//! conv.accumulate(&mut img.clone(), &ks, &mut acc);
+//! let mut out = vec![0.0f32; 64];
+//! conv.inverse(&mut acc, &mut out);
+//! assert!((out[9] - 1.0).abs() < 1e-6);
+//! ```
+
+use num_complex::Complex32;
+use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
+use rustfft::{Fft, FftPlanner};
+use std::sync::Arc;
+
+/// Smallest n' >= n whose prime factors are 2, 3 and 5 (fast FFT sizes).
+pub fn fast_size(n: usize) -> usize {
+    let mut m = n.max(1);
+    loop {
+        let mut k = m;
+        for p in [2, 3, 5] {
+            while k % p == 0 {
+                k /= p;
+            }
+        }
+        if k == 1 {
+            return m;
+        }
+        m += 1;
+    }
+}
+
+/// FFT convolver for images of `hp x wp` (already padded) pixels.
+pub struct FftConv {
+    pub hp: usize,
+    pub wp: usize,
+    wc: usize,
+    r2c: Arc<dyn RealToComplex<f32>>,
+    c2r: Arc<dyn ComplexToReal<f32>>,
+    col_fwd: Arc<dyn Fft<f32>>,
+    col_inv: Arc<dyn Fft<f32>>,
+    row_spec: Vec<Complex32>,
+    rows: Vec<Complex32>,
+    scratch: Vec<Complex32>,
+    real_row: Vec<f32>,
+}
+
+impl Clone for FftConv {
+    fn clone(&self) -> Self {
+        FftConv::new(self.hp, self.wp)
+    }
+}
+
+impl FftConv {
+    pub fn new(hp: usize, wp: usize) -> FftConv {
+        let mut rp = RealFftPlanner::<f32>::new();
+        let r2c = rp.plan_fft_forward(wp);
+        let c2r = rp.plan_fft_inverse(wp);
+        let mut cp = FftPlanner::<f32>::new();
+        let col_fwd = cp.plan_fft_forward(hp);
+        let col_inv = cp.plan_fft_inverse(hp);
+        let wc = wp / 2 + 1;
+        let scratch_len = [r2c.get_scratch_len(), c2r.get_scratch_len(), col_fwd.get_inplace_scratch_len(), col_inv.get_inplace_scratch_len()]
+            .into_iter()
+            .max()
+            .unwrap_or(0);
+        FftConv {
+            hp,
+            wp,
+            wc,
+            r2c,
+            c2r,
+            col_fwd,
+            col_inv,
+            row_spec: vec![Complex32::new(0.0, 0.0); wc],
+            rows: vec![Complex32::new(0.0, 0.0); hp * wc],
+            scratch: vec![Complex32::new(0.0, 0.0); scratch_len],
+            real_row: vec![0.0; wp],
+        }
+    }
+
+    /// Number of complex values in a spectrum.
+    pub fn spectrum_len(&self) -> usize {
+        self.wc * self.hp
+    }
+
+    pub fn zero_spectrum(&self) -> Vec<Complex32> {
+        vec![Complex32::new(0.0, 0.0); self.spectrum_len()]
+    }
+
+    /// Forward transform of an `hp x wp` row-major image into `out` (transposed layout).
+    /// `img` is used as scratch and left unspecified.
+    pub fn forward(&mut self, img: &mut [f32], out: &mut [Complex32]) {
+        let (hp, wp) = (self.hp, self.wp);
+        assert_eq!(img.len(), hp * wp);
+        for y in 0..hp {
+            let row = &mut img[y * wp..(y + 1) * wp];
+            self.r2c.process_with_scratch(row, &mut self.row_spec, &mut self.scratch).expect("r2c sizes match");
+            for (x, v) in self.row_spec.iter().enumerate() {
+                out[x * hp + y] = *v;
+            }
+        }
+        self.col_fwd.process_with_scratch(out, &mut self.scratch);
+    }
+
+    /// Spectrum of a centred `(2h + 1)^2` kernel (row-major, `kernel.len()` a square) for this size.
+    pub fn kernel_spectrum(&mut self, kernel: &[f32]) -> Vec<Complex32> {
+        let n = (kernel.len() as f64).sqrt().round() as usize;
+        assert_eq!(n * n, kernel.len(), "kernel must be square");
+        assert!(n % 2 == 1 && n <= self.hp && n <= self.wp, "kernel {n} does not fit {}x{}", self.hp, self.wp);
+        let h = (n / 2) as isize;
+        let mut img = vec![0.0f32; self.hp * self.wp];
+        for ky in 0..n as isize {
+            for kx in 0..n as isize {
+                let y = (ky - h).rem_euclid(self.hp as isize) as usize;
+                let x = (kx - h).rem_euclid(self.wp as isize) as usize;
+                img[y * self.wp + x] += kernel[(ky * n as isize + kx) as usize];
+            }
+        }
+        let mut out = self.zero_spectrum();
+        self.forward(&mut img, &mut out);
+        out
+    }
+
+    /// `acc += F(img) * kernel_spec`.
+    pub fn accumulate(&mut self, img: &mut [f32], kernel_spec: &[Complex32], acc: &mut [Complex32]) {
+        let mut spec = std::mem::take(&mut self.rows);
+        self.forward(img, &mut spec);
+        mul_acc(&spec, kernel_spec, acc);
+        self.rows = spec;
+    }
+
+    /// Inverse transform of a spectrum (consumed as scratch) into an `hp x wp` image,
+    /// normalised so that a delta kernel is the identity.
+    pub fn inverse(&mut self, spec: &mut [Complex32], out: &mut [f32]) {
+        let (hp, wp, wc) = (self.hp, self.wp, self.wc);
+        self.col_inv.process_with_scratch(spec, &mut self.scratch);
+        let norm = 1.0 / (hp * wp) as f32;
+        for y in 0..hp {
+            for x in 0..wc {
+                self.row_spec[x] = spec[x * hp + y];
+            }
+            // A real signal's DC and (even-length) Nyquist bins are real.
+            self.row_spec[0].im = 0.0;
+            if wp % 2 == 0 {
+                self.row_spec[wc - 1].im = 0.0;
+            }
+            self.c2r.process_with_scratch(&mut self.row_spec, &mut self.real_row, &mut self.scratch).expect("c2r sizes match");
+            for (o, v) in out[y * wp..(y + 1) * wp].iter_mut().zip(&self.real_row) {
+                *o = v * norm;
+            }
+        }
+    }
+}
+
+/// `acc += a * b`, elementwise.
+pub fn mul_acc(a: &[Complex32], b: &[Complex32], acc: &mut [Complex32]) {
+    for ((o, x), y) in acc.iter_mut().zip(a).zip(b) {
+        *o += x * y;
+    }
+}
+
+/// Mirror index (`abc|cba` without repeating the edge: OpenCV's BORDER_REFLECT_101) of `i` into
+/// `0..n`; handles any distance by folding.
+pub fn reflect(i: isize, n: usize) -> usize {
+    if n == 1 {
+        return 0;
+    }
+    let period = 2 * (n as isize - 1);
+    let m = i.rem_euclid(period);
+    (if m < n as isize { m } else { period - m }) as usize
+}
+
+/// Direct 2-D convolution with reflected borders: the reference the FFT path is tested against.
+/// `img` is `h x w`, `kernel` a centred odd square; output `h x w`.
+pub fn convolve_direct(img: &[f32], h: usize, w: usize, kernel: &[f32]) -> Vec<f32> {
+    let n = (kernel.len() as f64).sqrt().round() as usize;
+    let kh = (n / 2) as isize;
+    let mut out = vec![0.0f32; h * w];
+    for y in 0..h as isize {
+        for x in 0..w as isize {
+            let mut s = 0.0f64;
+            for dy in -kh..=kh {
+                for dx in -kh..=kh {
+                    let k = kernel[((dy + kh) * n as isize + dx + kh) as usize] as f64;
+                    s += k * img[reflect(y - dy, h) * w + reflect(x - dx, w)] as f64;
+                }
+            }
+            out[(y * w as isize + x) as usize] = s as f32;
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn lcg(seed: &mut u64) -> f32 {
+        *seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        ((*seed >> 40) as f32) / (1u64 << 24) as f32
+    }
+
+    /// Pads `img` (h x w) by `m` reflected pixels into an hp x wp buffer.
+    fn pad(img: &[f32], h: usize, w: usize, m: usize, hp: usize, wp: usize) -> Vec<f32> {
+        let mut out = vec![0.0f32; hp * wp];
+        for y in 0..h + 2 * m {
+            for x in 0..w + 2 * m {
+                out[y * wp + x] = img[reflect(y as isize - m as isize, h) * w + reflect(x as isize - m as isize, w)];
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn fft_sum_of_convolutions_equals_direct_convolution() {
+        let (h, w, kn) = (37, 53, 9);
+        let m = kn / 2;
+        let mut seed = 7;
+        let imgs: Vec<Vec<f32>> = (0..3).map(|_| (0..h * w).map(|_| lcg(&mut seed)).collect()).collect();
+        let kernels: Vec<Vec<f32>> = (0..3).map(|_| (0..kn * kn).map(|_| lcg(&mut seed)).collect()).collect();
+        let (hp, wp) = (fast_size(h + 2 * m), fast_size(w + 2 * m));
+        let mut conv = FftConv::new(hp, wp);
+        let mut acc = conv.zero_spectrum();
+        for (img, k) in imgs.iter().zip(&kernels) {
+            let ks = conv.kernel_spectrum(k);
+            conv.accumulate(&mut pad(img, h, w, m, hp, wp), &ks, &mut acc);
+        }
+        let mut out = vec![0.0f32; hp * wp];
+        conv.inverse(&mut acc, &mut out);
+        let mut want = vec![0.0f32; h * w];
+        for (img, k) in imgs.iter().zip(&kernels) {
+            for (a, b) in want.iter_mut().zip(convolve_direct(img, h, w, k)) {
+                *a += b;
+            }
+        }
+        let mut worst = 0.0f32;
+        for y in 0..h {
+            for x in 0..w {
+                worst = worst.max((out[(y + m) * wp + x + m] - want[y * w + x]).abs());
+            }
+        }
+        // Values are sums of ~240 products of magnitude <= 1.
+        assert!(worst < 2e-4, "max abs error {worst}");
+    }
+
+    #[test]
+    fn delta_kernel_is_the_identity() {
+        let (h, w) = (16, 30);
+        let mut seed = 3;
+        let img: Vec<f32> = (0..h * w).map(|_| lcg(&mut seed)).collect();
+        let mut conv = FftConv::new(h, w);
+        let ks = conv.kernel_spectrum(&[1.0]);
+        let mut acc = conv.zero_spectrum();
+        conv.accumulate(&mut img.clone(), &ks, &mut acc);
+        let mut out = vec![0.0; h * w];
+        conv.inverse(&mut acc, &mut out);
+        for (a, b) in out.iter().zip(&img) {
+            assert!((a - b).abs() < 1e-6);
+        }
+    }
+
+    #[test]
+    fn reflect_folds_like_border_reflect_101() {
+        let got: Vec<usize> = (-4..8).map(|i| reflect(i, 4)).collect();
+        assert_eq!(got, vec![2, 3, 2, 1, 0, 1, 2, 3, 2, 1, 0, 1]);
+        assert_eq!(fast_size(127), 128);
+        assert_eq!(fast_size(721), 729);
+    }
+}
