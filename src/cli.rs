@@ -1,5 +1,6 @@
 //! The command line: clap definitions and dispatch. `main.rs` only calls [`run`].
 
+use crate::graph::{ProgressMode, RunOptions};
 use crate::optics::{CameraConfig, CameraKind, Dispersion, OpticsConfig, Spectrum};
 use crate::psfcmd::{self, PsfRequest};
 use anyhow::{bail, Context};
@@ -29,6 +30,22 @@ pub enum Command {
         after_help = "Examples:\n  pipeline psf --psi 0:8:9 --out strip.png            lens PSF of the coded camera at 9 psi values\n  pipeline psf --psi 0,4,8 --out psfs.npy             (3, H, W, 3) float32, R G B, each channel sums to 1\n  pipeline psf --camera parabolic --window 9 --out k.png   the 9 sub-frame kernels of one exposure\n  pipeline psf --config optics.toml --psi 0:8:33      [optics] and [camera] tables from a file"
     )]
     Psf(PsfArgs),
+    /// Make coded-blur training data from videos with the default generate pipeline.
+    #[command(
+        after_help = "Examples:\n  pipeline generate clip.mp4 -o out/                       patches in WebDataset shards\n  pipeline generate clips/ -o out/ --set transforms.blur.camera.type=conventional\n  pipeline generate a.mp4 b.mkv -o out/ --shard-index 0 --shard-count 2\n\nThe default pipeline is pipelines/generate.toml (embedded); see it for every key."
+    )]
+    Generate(GenerateArgs),
+    /// Run a pipeline file.
+    Run(RunArgs),
+    /// Check pipeline files and report every error, each naming its key.
+    Validate {
+        /// Pipeline files.
+        #[arg(required = true)]
+        pipelines: Vec<PathBuf>,
+        /// key.path=value overrides, as for `run`.
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        sets: Vec<String>,
+    },
     /// Measure speed (medians of repeats); not part of the tests.
     #[command(subcommand)]
     Bench(BenchCommand),
@@ -47,6 +64,49 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 7, value_parser = clap::value_parser!(u16).range(1..=1000))]
         repeats: u16,
     },
+}
+
+/// Options shared by the commands that run a pipeline.
+#[derive(Args, Debug, Clone)]
+pub struct RunCommon {
+    /// Override one key of the pipeline file: --set transforms.noise.sigma=3 (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub sets: Vec<String>,
+    /// This task's share of the sorted inputs (input i goes to task i % count). Default:
+    /// SLURM_ARRAY_TASK_ID or JOB_COMPLETION_INDEX, else 0.
+    #[arg(long)]
+    pub shard_index: Option<usize>,
+    /// Number of tasks. Default: SLURM_ARRAY_TASK_COUNT, else 1.
+    #[arg(long)]
+    pub shard_count: Option<usize>,
+    /// Progress display on stderr.
+    #[arg(long, value_enum, default_value_t = ProgressMode::Auto)]
+    pub progress: ProgressMode,
+}
+
+#[derive(Args, Debug)]
+pub struct GenerateArgs {
+    /// Video files, folders of videos, or file-name globs; default: the pipeline's paths.
+    pub videos: Vec<String>,
+    /// Output folder (shards, manifest.json, report.json).
+    #[arg(short, long)]
+    pub out: Option<PathBuf>,
+    /// Pipeline file instead of the embedded pipelines/generate.toml.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    #[command(flatten)]
+    pub common: RunCommon,
+}
+
+#[derive(Args, Debug)]
+pub struct RunArgs {
+    /// Pipeline file (TOML).
+    pub pipeline: PathBuf,
+    /// Output folder (sets the sink's dir).
+    #[arg(short, long)]
+    pub out: Option<PathBuf>,
+    #[command(flatten)]
+    pub common: RunCommon,
 }
 
 #[derive(Args, Debug)]
@@ -178,6 +238,78 @@ fn run_psf(a: PsfArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// The default generate pipeline, embedded.
+pub const GENERATE_TOML: &str = include_str!("../pipelines/generate.toml");
+
+fn env_usize(name: &str) -> anyhow::Result<Option<usize>> {
+    match std::env::var(name) {
+        Ok(v) if !v.trim().is_empty() => v
+            .trim()
+            .parse()
+            .map(Some)
+            .map_err(|_| anyhow::anyhow!("{name}={v:?} is not a whole number")),
+        _ => Ok(None),
+    }
+}
+
+/// Task index and count from flags, then Slurm or Kubernetes variables.
+fn task_split(c: &RunCommon) -> anyhow::Result<(usize, usize)> {
+    let index = match c.shard_index {
+        Some(i) => i,
+        None => env_usize("SLURM_ARRAY_TASK_ID")?
+            .or(env_usize("JOB_COMPLETION_INDEX")?)
+            .unwrap_or(0),
+    };
+    let count = match c.shard_count {
+        Some(n) => n,
+        None => env_usize("SLURM_ARRAY_TASK_COUNT")?.unwrap_or(1),
+    };
+    if count == 0 || index >= count {
+        bail!("--shard-index {index} must be below --shard-count {count}");
+    }
+    Ok((index, count))
+}
+
+fn run_plan(
+    table: toml::Table,
+    origin: &str,
+    out: Option<&PathBuf>,
+    c: &RunCommon,
+) -> anyhow::Result<()> {
+    let mut plan = crate::config::plan(table, origin)?;
+    if let Some(o) = out {
+        plan.set_out_dir(o);
+    }
+    let (task_index, task_count) = task_split(c)?;
+    let opts = RunOptions {
+        task_index,
+        task_count,
+        progress: c.progress,
+        command: std::env::args().collect::<Vec<_>>().join(" "),
+    };
+    let o = crate::graph::run(&plan, &opts)?;
+    let r = &o.report;
+    eprintln!(
+        "{} inputs done ({} skipped as already in the manifest), {} frames, {} windows, {} samples in {:.1} s: {:.1} frames/s, {:.1} sub-frames/s blurred -> {}",
+        r.inputs_done,
+        r.inputs_skipped.len(),
+        r.frames,
+        r.windows,
+        r.samples,
+        r.seconds,
+        r.frames_per_s,
+        r.subframes_per_s,
+        o.out_dir.display()
+    );
+    if !r.inputs_failed.is_empty() {
+        for f in &r.inputs_failed {
+            eprintln!("failed: {}", f.error);
+        }
+        return Err(crate::Error::InputsFailed(r.inputs_failed.len()).into());
+    }
+    Ok(())
+}
+
 /// Runs a parsed command line.
 ///
 /// # Errors
@@ -185,6 +317,82 @@ fn run_psf(a: PsfArgs) -> anyhow::Result<()> {
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Psf(a) => run_psf(a),
+        Command::Generate(a) => {
+            let mut table = match &a.config {
+                Some(p) => crate::config::load(p, &[])?,
+                None => {
+                    crate::config::parse(GENERATE_TOML, "pipelines/generate.toml (embedded)", &[])?
+                }
+            };
+            if !a.videos.is_empty() {
+                let sources = table
+                    .get_mut("sources")
+                    .and_then(|s| s.as_table_mut())
+                    .ok_or_else(|| anyhow::anyhow!("the pipeline has no [sources]"))?;
+                for (_, src) in sources.iter_mut() {
+                    if let Some(t) = src.as_table_mut() {
+                        t.insert(
+                            "paths".into(),
+                            toml::Value::Array(
+                                a.videos
+                                    .iter()
+                                    .map(|v| toml::Value::String(v.clone()))
+                                    .collect(),
+                            ),
+                        );
+                    }
+                }
+            }
+            crate::config::apply_sets(&mut table, &a.common.sets).map_err(crate::Error::Invalid)?;
+            let origin = a
+                .config
+                .as_ref()
+                .map_or("pipelines/generate.toml (embedded)".to_string(), |p| {
+                    p.display().to_string()
+                });
+            run_plan(table, &origin, a.out.as_ref(), &a.common)
+        }
+        Command::Run(a) => {
+            let table = crate::config::load(&a.pipeline, &a.common.sets)?;
+            run_plan(
+                table,
+                &a.pipeline.display().to_string(),
+                a.out.as_ref(),
+                &a.common,
+            )
+        }
+        Command::Validate { pipelines, sets } => {
+            let mut bad = 0;
+            for p in &pipelines {
+                match crate::config::load(p, &sets)
+                    .and_then(|t| crate::config::plan(t, &p.display().to_string()))
+                {
+                    Ok(plan) => println!(
+                        "{}: ok ({})",
+                        p.display(),
+                        plan.stages
+                            .iter()
+                            .map(|(n, _)| n.as_str())
+                            .collect::<Vec<_>>()
+                            .join(" -> ")
+                    ),
+                    Err(e) => {
+                        bad += 1;
+                        for line in e.to_string().lines() {
+                            println!("{}: {line}", p.display());
+                        }
+                    }
+                }
+            }
+            if bad > 0 {
+                return Err(crate::Error::Config(vec![crate::optics::ConfigError {
+                    key: "validate".into(),
+                    message: format!("{bad} of {} pipeline files have errors", pipelines.len()),
+                }])
+                .into());
+            }
+            Ok(())
+        }
         Command::Bench(BenchCommand::Psf {
             camera,
             window,

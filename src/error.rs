@@ -14,6 +14,8 @@ pub enum Error {
     Config(Vec<crate::optics::ConfigError>),
     #[error("{0}")]
     Invalid(String),
+    #[error("{0} input(s) failed; see report.json")]
+    InputsFailed(usize),
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;

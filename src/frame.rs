@@ -74,6 +74,9 @@ pub struct Sample {
     pub curve: Curve,
     /// Noise sigma on the 0-255 scale as applied (after the camera's light loss), None before noise.
     pub sigma: Option<f64>,
+    /// Share of a conventional camera's light this camera collects (0.5 for the flutter code);
+    /// the noise stage divides sigma by it, as brightening the image to the same level would.
+    pub light_throughput: f64,
     pub frame_width: usize,
     pub frame_height: usize,
     /// True when the pairs were cut before blurring (patch mode).

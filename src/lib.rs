@@ -12,9 +12,11 @@ pub mod cli;
 pub mod config;
 pub mod error;
 pub mod frame;
+pub mod graph;
 pub mod io;
 pub mod optics;
 pub mod psfcmd;
 pub mod rng;
+pub mod stage;
 
 pub use error::{Error, Result};

@@ -2,11 +2,11 @@
 
 pub mod atomic;
 pub mod exr;
-pub mod tar;
-#[cfg(feature = "ffmpeg")]
-pub mod video;
 pub mod font;
 pub mod npy;
 pub mod png;
+pub mod tar;
+#[cfg(feature = "ffmpeg")]
+pub mod video;
 
 pub use atomic::write_atomic;

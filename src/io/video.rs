@@ -41,16 +41,33 @@ impl VideoReader {
         if !path.exists() {
             return Err("no such file".into());
         }
-        let ictx = ff::format::input(&path).map_err(|e| format!("not a readable video ({})", fmt_err(e)))?;
-        let st = ictx.streams().best(ff::media::Type::Video).ok_or("no video stream")?;
+        let ictx = ff::format::input(&path)
+            .map_err(|e| format!("not a readable video ({})", fmt_err(e)))?;
+        let st = ictx
+            .streams()
+            .best(ff::media::Type::Video)
+            .ok_or("no video stream")?;
         let stream = st.index();
         let rate = st.avg_frame_rate();
-        let fps = if rate.denominator() != 0 { rate.numerator() as f64 / rate.denominator() as f64 } else { 0.0 };
+        let fps = if rate.denominator() != 0 {
+            rate.numerator() as f64 / rate.denominator() as f64
+        } else {
+            0.0
+        };
         let announced = st.frames();
-        let mut ctx = ff::codec::context::Context::from_parameters(st.parameters()).map_err(fmt_err)?;
-        ctx.set_threading(ff::codec::threading::Config::kind(ff::codec::threading::Type::Frame));
-        let decoder = ctx.decoder().video().map_err(|e| format!("no decoder ({})", fmt_err(e)))?;
-        let codec = decoder.codec().map(|c| c.name().to_string()).unwrap_or_default();
+        let mut ctx =
+            ff::codec::context::Context::from_parameters(st.parameters()).map_err(fmt_err)?;
+        ctx.set_threading(ff::codec::threading::Config::kind(
+            ff::codec::threading::Type::Frame,
+        ));
+        let decoder = ctx
+            .decoder()
+            .video()
+            .map_err(|e| format!("no decoder ({})", fmt_err(e)))?;
+        let codec = decoder
+            .codec()
+            .map(|c| c.name().to_string())
+            .unwrap_or_default();
         let info = InputInfo {
             width: decoder.width() as usize,
             height: decoder.height() as usize,
@@ -79,21 +96,42 @@ impl VideoReader {
     fn convert(&mut self) -> Result<Frame, String> {
         let (w, h) = (self.decoded.width(), self.decoded.height());
         if self.scaler.is_none() {
-            let mut sc = ff::software::scaling::Context::get(self.decoded.format(), w, h, ff::format::Pixel::RGB48LE, w, h, ff::software::scaling::Flags::BILINEAR | ff::software::scaling::Flags::ACCURATE_RND | ff::software::scaling::Flags::FULL_CHR_H_INT)
-                .map_err(fmt_err)?;
+            let mut sc = ff::software::scaling::Context::get(
+                self.decoded.format(),
+                w,
+                h,
+                ff::format::Pixel::RGB48LE,
+                w,
+                h,
+                ff::software::scaling::Flags::BILINEAR
+                    | ff::software::scaling::Flags::ACCURATE_RND
+                    | ff::software::scaling::Flags::FULL_CHR_H_INT,
+            )
+            .map_err(fmt_err)?;
             set_colorspace(&mut sc, &self.decoded);
             self.scaler = Some(sc);
         }
-        self.scaler.as_mut().expect("scaler set").run(&self.decoded, &mut self.rgb).map_err(fmt_err)?;
+        self.scaler
+            .as_mut()
+            .expect("scaler set")
+            .run(&self.decoded, &mut self.rgb)
+            .map_err(fmt_err)?;
         let stride = self.rgb.stride(0);
         let bytes = self.rgb.data(0);
         let (w, h) = (w as usize, h as usize);
         let mut out = Vec::with_capacity(w * h * 3);
         for y in 0..h {
             let row = &bytes[y * stride..y * stride + w * 6];
-            out.extend(row.chunks_exact(2).map(|b| u16::from_le_bytes([b[0], b[1]])));
+            out.extend(
+                row.chunks_exact(2)
+                    .map(|b| u16::from_le_bytes([b[0], b[1]])),
+            );
         }
-        Ok(Frame { width: w, height: h, data: FrameData::Rgb48(out) })
+        Ok(Frame {
+            width: w,
+            height: h,
+            data: FrameData::Rgb48(out),
+        })
     }
 
     /// The next frame, `None` at the end.
@@ -115,7 +153,13 @@ impl VideoReader {
                     return Ok(None);
                 }
                 Err(ff::Error::Other { errno }) if errno == ff::util::error::EAGAIN => {}
-                Err(e) => return Err(format!("decoding failed after frame {} ({})", self.frames_decoded, fmt_err(e))),
+                Err(e) => {
+                    return Err(format!(
+                        "decoding failed after frame {} ({})",
+                        self.frames_decoded,
+                        fmt_err(e)
+                    ))
+                }
             }
             if self.flushed {
                 self.done = true;
@@ -126,7 +170,11 @@ impl VideoReader {
                 Ok(()) => {
                     if packet.stream() == self.stream {
                         if let Err(e) = self.decoder.send_packet(&packet) {
-                            return Err(format!("damaged data after frame {} ({})", self.frames_decoded, fmt_err(e)));
+                            return Err(format!(
+                                "damaged data after frame {} ({})",
+                                self.frames_decoded,
+                                fmt_err(e)
+                            ));
                         }
                     }
                 }
@@ -134,7 +182,13 @@ impl VideoReader {
                     self.decoder.send_eof().map_err(fmt_err)?;
                     self.flushed = true;
                 }
-                Err(e) => return Err(format!("reading failed after frame {} ({})", self.frames_decoded, fmt_err(e))),
+                Err(e) => {
+                    return Err(format!(
+                        "reading failed after frame {} ({})",
+                        self.frames_decoded,
+                        fmt_err(e)
+                    ))
+                }
             }
         }
     }
@@ -151,12 +205,22 @@ fn set_colorspace(sc: &mut ff::software::scaling::Context, frame: &ff::frame::Vi
         ff::color::Space::FCC => ffi::SWS_CS_FCC,
         _ => ffi::SWS_CS_DEFAULT,
     };
-    let src_full = i32::from(frame.color_range() == ff::color::Range::JPEG || is_rgb_or_full(frame.format()));
+    let src_full =
+        i32::from(frame.color_range() == ff::color::Range::JPEG || is_rgb_or_full(frame.format()));
     // SAFETY: the context pointer is valid for the scaler's lifetime; the coefficient tables are
     // static arrays owned by libswscale.
     unsafe {
         let table = ffi::sws_getCoefficients(cs as i32);
-        ffi::sws_setColorspaceDetails(sc.as_mut_ptr(), table, src_full, ffi::sws_getCoefficients(ffi::SWS_CS_DEFAULT as i32), 1, 0, 1 << 16, 1 << 16);
+        ffi::sws_setColorspaceDetails(
+            sc.as_mut_ptr(),
+            table,
+            src_full,
+            ffi::sws_getCoefficients(ffi::SWS_CS_DEFAULT as i32),
+            1,
+            0,
+            1 << 16,
+            1 << 16,
+        );
     }
 }
 

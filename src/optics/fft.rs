@@ -72,10 +72,15 @@ impl FftConv {
         let col_fwd = cp.plan_fft_forward(hp);
         let col_inv = cp.plan_fft_inverse(hp);
         let wc = wp / 2 + 1;
-        let scratch_len = [r2c.get_scratch_len(), c2r.get_scratch_len(), col_fwd.get_inplace_scratch_len(), col_inv.get_inplace_scratch_len()]
-            .into_iter()
-            .max()
-            .unwrap_or(0);
+        let scratch_len = [
+            r2c.get_scratch_len(),
+            c2r.get_scratch_len(),
+            col_fwd.get_inplace_scratch_len(),
+            col_inv.get_inplace_scratch_len(),
+        ]
+        .into_iter()
+        .max()
+        .unwrap_or(0);
         FftConv {
             hp,
             wp,
@@ -107,7 +112,9 @@ impl FftConv {
         assert_eq!(img.len(), hp * wp);
         for y in 0..hp {
             let row = &mut img[y * wp..(y + 1) * wp];
-            self.r2c.process_with_scratch(row, &mut self.row_spec, &mut self.scratch).expect("r2c sizes match");
+            self.r2c
+                .process_with_scratch(row, &mut self.row_spec, &mut self.scratch)
+                .expect("r2c sizes match");
             for (x, v) in self.row_spec.iter().enumerate() {
                 out[x * hp + y] = *v;
             }
@@ -119,7 +126,12 @@ impl FftConv {
     pub fn kernel_spectrum(&mut self, kernel: &[f32]) -> Vec<Complex32> {
         let n = (kernel.len() as f64).sqrt().round() as usize;
         assert_eq!(n * n, kernel.len(), "kernel must be square");
-        assert!(n % 2 == 1 && n <= self.hp && n <= self.wp, "kernel {n} does not fit {}x{}", self.hp, self.wp);
+        assert!(
+            n % 2 == 1 && n <= self.hp && n <= self.wp,
+            "kernel {n} does not fit {}x{}",
+            self.hp,
+            self.wp
+        );
         let h = (n / 2) as isize;
         let mut img = vec![0.0f32; self.hp * self.wp];
         for ky in 0..n as isize {
@@ -135,7 +147,12 @@ impl FftConv {
     }
 
     /// `acc += F(img) * kernel_spec`.
-    pub fn accumulate(&mut self, img: &mut [f32], kernel_spec: &[Complex32], acc: &mut [Complex32]) {
+    pub fn accumulate(
+        &mut self,
+        img: &mut [f32],
+        kernel_spec: &[Complex32],
+        acc: &mut [Complex32],
+    ) {
         let mut spec = std::mem::take(&mut self.rows);
         self.forward(img, &mut spec);
         mul_acc(&spec, kernel_spec, acc);
@@ -157,7 +174,9 @@ impl FftConv {
             if wp % 2 == 0 {
                 self.row_spec[wc - 1].im = 0.0;
             }
-            self.c2r.process_with_scratch(&mut self.row_spec, &mut self.real_row, &mut self.scratch).expect("c2r sizes match");
+            self.c2r
+                .process_with_scratch(&mut self.row_spec, &mut self.real_row, &mut self.scratch)
+                .expect("c2r sizes match");
             for (o, v) in out[y * wp..(y + 1) * wp].iter_mut().zip(&self.real_row) {
                 *o = v * norm;
             }
@@ -209,7 +228,9 @@ mod tests {
     use super::*;
 
     fn lcg(seed: &mut u64) -> f32 {
-        *seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        *seed = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         ((*seed >> 40) as f32) / (1u64 << 24) as f32
     }
 
@@ -218,7 +239,8 @@ mod tests {
         let mut out = vec![0.0f32; hp * wp];
         for y in 0..h + 2 * m {
             for x in 0..w + 2 * m {
-                out[y * wp + x] = img[reflect(y as isize - m as isize, h) * w + reflect(x as isize - m as isize, w)];
+                out[y * wp + x] = img
+                    [reflect(y as isize - m as isize, h) * w + reflect(x as isize - m as isize, w)];
             }
         }
         out
@@ -229,8 +251,12 @@ mod tests {
         let (h, w, kn) = (37, 53, 9);
         let m = kn / 2;
         let mut seed = 7;
-        let imgs: Vec<Vec<f32>> = (0..3).map(|_| (0..h * w).map(|_| lcg(&mut seed)).collect()).collect();
-        let kernels: Vec<Vec<f32>> = (0..3).map(|_| (0..kn * kn).map(|_| lcg(&mut seed)).collect()).collect();
+        let imgs: Vec<Vec<f32>> = (0..3)
+            .map(|_| (0..h * w).map(|_| lcg(&mut seed)).collect())
+            .collect();
+        let kernels: Vec<Vec<f32>> = (0..3)
+            .map(|_| (0..kn * kn).map(|_| lcg(&mut seed)).collect())
+            .collect();
         let (hp, wp) = (fast_size(h + 2 * m), fast_size(w + 2 * m));
         let mut conv = FftConv::new(hp, wp);
         let mut acc = conv.zero_spectrum();

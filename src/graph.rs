@@ -1,0 +1,669 @@
+//! Runs a [`Plan`]: one thread per stage, bounded crossbeam channels between them
+//! (backpressure), the first error stops every stage and is reported with the stage's name,
+//! Ctrl-C stops cleanly (sinks remove what they had not finished). Progress goes to stderr:
+//! bars on a terminal, a plain line every few seconds otherwise. `report.json` is written to
+//! the output folder.
+
+use crate::config::{Plan, SinkConfig, SourceConfig, StagePlan, TransformConfig};
+use crate::frame::{Input, Item};
+use crate::optics::Camera;
+use crate::stage::blur::{Blurrer, CodedBlur};
+use crate::stage::noise::Noise;
+use crate::stage::patches::{Patches, Selector};
+use crate::stage::shards::{completed, Frames, Manifest, Shards};
+use crate::stage::source::{input_key, Needs, Stills};
+use crate::stage::{Counters, Emit, Linearize, Sink, Source, StageError, Transform};
+use crate::{Error, Result};
+use crossbeam_channel::{bounded, Receiver, RecvTimeoutError};
+use serde::Serialize;
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+static INTERRUPTED: AtomicBool = AtomicBool::new(false);
+
+extern "C" fn on_sigint(_: libc::c_int) {
+    INTERRUPTED.store(true, Ordering::SeqCst);
+}
+
+fn install_sigint() {
+    static ONCE: std::sync::Once = std::sync::Once::new();
+    // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
+    ONCE.call_once(|| unsafe {
+        libc::signal(libc::SIGINT, on_sigint as *const () as libc::sighandler_t);
+    });
+}
+
+/// How progress is shown.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum ProgressMode {
+    /// Bars on a terminal, status lines otherwise.
+    Auto,
+    /// Status lines every few seconds.
+    Lines,
+    /// Nothing but the summary.
+    Never,
+}
+
+/// How this run fits a sharded job and where it writes.
+#[derive(Debug, Clone)]
+pub struct RunOptions {
+    pub task_index: usize,
+    pub task_count: usize,
+    pub progress: ProgressMode,
+    pub command: String,
+}
+
+impl Default for RunOptions {
+    fn default() -> Self {
+        RunOptions {
+            task_index: 0,
+            task_count: 1,
+            progress: ProgressMode::Never,
+            command: String::new(),
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct StageReport {
+    pub name: String,
+    pub kind: String,
+    /// Seconds spent working (not waiting on its neighbours).
+    pub busy_s: f64,
+    pub items_in: u64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct FailedInput {
+    pub path: String,
+    pub error: String,
+}
+
+/// `report.json`.
+#[derive(Debug, Clone, Serialize)]
+pub struct Report {
+    pub version: &'static str,
+    pub command: String,
+    pub seed: u64,
+    pub task_index: usize,
+    pub task_count: usize,
+    pub inputs_total: usize,
+    pub inputs_selected: usize,
+    pub inputs_skipped: Vec<String>,
+    pub inputs_done: u64,
+    pub inputs_failed: Vec<FailedInput>,
+    pub frames: u64,
+    pub windows: u64,
+    pub subframes: u64,
+    pub samples: u64,
+    pub seconds: f64,
+    pub frames_per_s: f64,
+    pub subframes_per_s: f64,
+    pub samples_per_s: f64,
+    pub stages: Vec<StageReport>,
+    pub sink: serde_json::Value,
+    pub interrupted: bool,
+    pub config: serde_json::Value,
+}
+
+const VIDEO_EXTS: &[&str] = &[
+    "mp4", "mkv", "mov", "avi", "webm", "m4v", "mts", "ts", "y4m", "nut",
+];
+
+/// The inputs of the plan's source, sorted, each with its global index.
+///
+/// # Errors
+/// A path that does not exist as a folder or pattern.
+pub fn list_inputs(plan: &Plan) -> Result<Vec<(Arc<Input>, Option<PathBuf>)>> {
+    let paths: Vec<Option<PathBuf>> = match plan.source() {
+        SourceConfig::Decode(d) => crate::config::expand_paths(&d.paths, VIDEO_EXTS)?
+            .into_iter()
+            .map(Some)
+            .collect(),
+        SourceConfig::Stills(s) if s.paths.is_empty() => (0..s.clips).map(|_| None).collect(),
+        SourceConfig::Stills(s) => crate::config::expand_paths(&s.paths, &["png"])?
+            .into_iter()
+            .map(Some)
+            .collect(),
+    };
+    Ok(paths
+        .into_iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let path = p
+                .as_ref()
+                .map_or_else(|| format!("procedural-{i:05}"), |p| p.display().to_string());
+            (
+                Arc::new(Input {
+                    index: i,
+                    key: input_key(i, &path),
+                    path,
+                }),
+                p,
+            )
+        })
+        .collect())
+}
+
+/// Runs a stage loop, timing the work and the waiting.
+struct Timing {
+    start: Instant,
+    waiting: Duration,
+    items: u64,
+}
+
+impl Timing {
+    fn new() -> Timing {
+        Timing {
+            start: Instant::now(),
+            waiting: Duration::ZERO,
+            items: 0,
+        }
+    }
+    fn busy(&self) -> f64 {
+        (self.start.elapsed().saturating_sub(self.waiting)).as_secs_f64()
+    }
+}
+
+fn recv(rx: &Receiver<Item>, stop: &AtomicBool, t: &mut Timing) -> Option<Item> {
+    let w = Instant::now();
+    loop {
+        if stop.load(Ordering::Relaxed) || INTERRUPTED.load(Ordering::Relaxed) {
+            stop.store(true, Ordering::Relaxed);
+            t.waiting += w.elapsed();
+            return None;
+        }
+        match rx.recv_timeout(Duration::from_millis(100)) {
+            Ok(i) => {
+                t.waiting += w.elapsed();
+                t.items += 1;
+                return Some(i);
+            }
+            Err(RecvTimeoutError::Timeout) => continue,
+            Err(RecvTimeoutError::Disconnected) => {
+                t.waiting += w.elapsed();
+                return None;
+            }
+        }
+    }
+}
+
+fn input_of(item: &Item) -> Option<usize> {
+    match item {
+        Item::Begin(i, _) | Item::Frame(i, _, _) | Item::End(i, _) => Some(i.index),
+        Item::Sample(s) => Some(s.input.index),
+    }
+}
+
+type FirstError = Arc<Mutex<Option<Error>>>;
+
+fn record(first: &FirstError, stop: &AtomicBool, stage: &str, e: Error) {
+    let mut g = first.lock().expect("error slot");
+    if g.is_none() {
+        *g = Some(Error::Invalid(format!("stage {stage}: {e}")));
+    }
+    stop.store(true, Ordering::Relaxed);
+}
+
+/// What `run` returns: the report (also written to the output folder).
+pub struct Outcome {
+    pub report: Report,
+    pub out_dir: PathBuf,
+}
+
+/// Builds the stages of a plan and runs them to the end.
+///
+/// # Errors
+/// Configuration that only shows at build time, an unwritable output folder, or the first
+/// fatal error of any stage (named). Failed inputs are not errors: they are in the report.
+pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
+    install_sigint();
+    INTERRUPTED.store(false, Ordering::SeqCst);
+    let t0 = Instant::now();
+    let out_dir = plan.out_dir();
+    std::fs::create_dir_all(&out_dir).map_err(|e| Error::Io {
+        path: out_dir.clone(),
+        source: e,
+    })?;
+    let probe = out_dir.join(format!(".write-test.{}", std::process::id()));
+    std::fs::write(&probe, b"").map_err(|e| Error::Io {
+        path: out_dir.clone(),
+        source: e,
+    })?;
+    let _ = std::fs::remove_file(&probe);
+
+    // Inputs: sorted, this task's share, minus what the manifest already lists.
+    let all = list_inputs(plan)?;
+    let n_total = all.len();
+    let manifest_name = Manifest::file_name(opts.task_index, opts.task_count);
+    let manifest = match plan.sink() {
+        SinkConfig::Shards(_) => Manifest::load(&out_dir, &manifest_name)?,
+        SinkConfig::Frames(_) => None,
+    };
+    let done = completed(&manifest);
+    let mut skipped = Vec::new();
+    let selected: Vec<(Arc<Input>, Option<PathBuf>)> = all
+        .into_iter()
+        .filter(|(i, _)| i.index % opts.task_count == opts.task_index)
+        .filter(|(i, _)| {
+            let skip = done.contains_key(&i.path);
+            if skip {
+                skipped.push(i.path.clone());
+            }
+            !skip
+        })
+        .collect();
+    let n_selected = selected.len() + skipped.len();
+
+    let counters = Arc::new(Counters::default());
+    Counters::add(&counters.inputs_total, selected.len() as u64);
+    let needs = Needs {
+        frames: plan.blur().map_or(1, |b| b.window as u64),
+        width: plan.patches().map_or(0, |p| p.size),
+        height: plan.patches().map_or(0, |p| p.size),
+    };
+    let patches = plan.patches().cloned();
+    // Crop first when everything between the blur and the patches is per-pixel (noise).
+    let crop_first = patches.as_ref().filter(|p| p.crop_first).filter(|_| {
+        let kinds: Vec<&StagePlan> = plan.stages.iter().map(|(_, s)| s).collect();
+        let b = kinds
+            .iter()
+            .position(|s| matches!(s, StagePlan::Transform(TransformConfig::CodedBlur(_))));
+        let p = kinds
+            .iter()
+            .position(|s| matches!(s, StagePlan::Transform(TransformConfig::Patches(_))));
+        match (b, p) {
+            (Some(b), Some(p)) if b < p => kinds[b + 1..p]
+                .iter()
+                .all(|s| matches!(s, StagePlan::Transform(TransformConfig::Noise(_)))),
+            _ => false,
+        }
+    });
+    let curve = plan
+        .stages
+        .iter()
+        .find_map(|(_, s)| match s {
+            StagePlan::Transform(TransformConfig::Linearize(l)) => Some(l.curve),
+            _ => None,
+        })
+        .unwrap_or(crate::optics::transfer::Curve::Identity);
+
+    // Build every stage before any thread starts.
+    let mut source: Option<Box<dyn Source>> = None;
+    let mut transforms: Vec<(String, String, Box<dyn Transform>)> = Vec::new();
+    let mut sink: Option<(String, Box<dyn Sink>)> = None;
+    for (name, st) in &plan.stages {
+        match st {
+            StagePlan::Source(SourceConfig::Decode(d)) => {
+                #[cfg(feature = "ffmpeg")]
+                {
+                    source = Some(Box::new(crate::stage::source::Decode {
+                        inputs: selected
+                            .iter()
+                            .map(|(i, p)| (i.clone(), p.clone().expect("decode inputs are files")))
+                            .collect(),
+                        max_frames: d.max_frames,
+                        needs,
+                        counters: counters.clone(),
+                    }));
+                }
+                #[cfg(not(feature = "ffmpeg"))]
+                {
+                    let _ = d;
+                    return Err(Error::Invalid(format!(
+                        "sources.{name}: built without the ffmpeg feature"
+                    )));
+                }
+            }
+            StagePlan::Source(SourceConfig::Stills(s)) => {
+                source = Some(Box::new(Stills {
+                    cfg: s.clone(),
+                    seed: plan.seed,
+                    inputs: selected.clone(),
+                    needs,
+                    counters: counters.clone(),
+                }));
+            }
+            StagePlan::Transform(TransformConfig::Linearize(l)) => transforms.push((
+                name.clone(),
+                "linearize".into(),
+                Box::new(Linearize::new(l.curve)),
+            )),
+            StagePlan::Transform(TransformConfig::CodedBlur(b)) => {
+                let cam = Arc::new(Camera::new(&b.optics, &b.camera));
+                let blurrer = Blurrer::new(cam, b.window, b.threads)?;
+                let sel = crop_first.map(Selector::new);
+                transforms.push((
+                    name.clone(),
+                    "coded_blur".into(),
+                    Box::new(CodedBlur::new(
+                        blurrer,
+                        b.stride.unwrap_or(b.window),
+                        curve,
+                        plan.seed,
+                        sel,
+                        counters.clone(),
+                    )),
+                ));
+            }
+            StagePlan::Transform(TransformConfig::Noise(n)) => transforms.push((
+                name.clone(),
+                "noise".into(),
+                Box::new(Noise::new(n.sigma, plan.seed)),
+            )),
+            StagePlan::Transform(TransformConfig::Patches(p)) => transforms.push((
+                name.clone(),
+                "patches".into(),
+                Box::new(Patches {
+                    selector: Selector::new(p),
+                    seed: plan.seed,
+                }),
+            )),
+            StagePlan::Sink(SinkConfig::Shards(s)) => {
+                let m = manifest.clone().unwrap_or(Manifest {
+                    format: "webdataset".into(),
+                    prefix: s.prefix.clone(),
+                    task_index: opts.task_index,
+                    task_count: opts.task_count,
+                    ..Default::default()
+                });
+                sink = Some((
+                    name.clone(),
+                    Box::new(Shards::new(
+                        out_dir.clone(),
+                        s.prefix.clone(),
+                        s.max_samples_per_shard,
+                        m,
+                        manifest_name.clone(),
+                        counters.clone(),
+                    )),
+                ));
+            }
+            StagePlan::Sink(SinkConfig::Frames(f)) => {
+                sink = Some((
+                    name.clone(),
+                    Box::new(Frames::new(out_dir.clone(), f.format, counters.clone())),
+                ))
+            }
+        }
+    }
+    let mut source = source.expect("a plan has a source");
+    let (sink_name, mut sink) = sink.expect("a plan has a sink");
+    let source_name = plan.stages[0].0.clone();
+
+    let stop = Arc::new(AtomicBool::new(false));
+    let first: FirstError = Arc::new(Mutex::new(None));
+    let cap = plan.run.channel_capacity;
+    let mut reports: Vec<StageReport> = Vec::new();
+    let sink_summary: Mutex<Option<serde_json::Value>> = Mutex::new(None);
+    let mut failures = Vec::new();
+    let progress = Progress::new(opts.progress, counters.clone(), selected.len());
+
+    std::thread::scope(|s| {
+        let (tx0, mut rx) = bounded::<Item>(cap);
+        let mut handles = Vec::new();
+        {
+            let (stop, first, name) = (stop.clone(), first.clone(), source_name.clone());
+            handles.push(s.spawn(move || {
+                let t = Timing::new();
+                let mut out = Emit::new(&tx0, &stop);
+                if let Err(e) = source.run(&mut out) {
+                    record(&first, &stop, &name, e);
+                }
+                StageReport {
+                    name,
+                    kind: "source".into(),
+                    busy_s: t.busy() - out.waited.as_secs_f64(),
+                    items_in: 0,
+                }
+            }));
+        }
+        for (name, kind, mut tr) in transforms.into_iter() {
+            let (tx, next_rx) = bounded::<Item>(cap);
+            let my_rx = std::mem::replace(&mut rx, next_rx);
+            let (stop, first) = (stop.clone(), first.clone());
+            handles.push(s.spawn(move || {
+                let mut t = Timing::new();
+                let mut out = Emit::new(&tx, &stop);
+                let mut failed: Vec<usize> = Vec::new();
+                while let Some(item) = recv(&my_rx, &stop, &mut t) {
+                    if input_of(&item).is_some_and(|i| failed.contains(&i)) {
+                        continue;
+                    }
+                    match tr.process(item, &mut out) {
+                        Ok(()) => {}
+                        Err(StageError::Input(input, msg)) => {
+                            failed.push(input.index);
+                            out.send(Item::End(input, Err(msg)));
+                        }
+                        Err(StageError::Fatal(e)) => {
+                            record(&first, &stop, &name, e);
+                            break;
+                        }
+                    }
+                    if out.closed {
+                        break;
+                    }
+                }
+                if !stop.load(Ordering::Relaxed) {
+                    if let Err(StageError::Fatal(e)) = tr.finish(&mut out) {
+                        record(&first, &stop, &name, e);
+                    }
+                }
+                StageReport {
+                    name,
+                    kind,
+                    busy_s: t.busy() - out.waited.as_secs_f64(),
+                    items_in: t.items,
+                }
+            }));
+        }
+        let sink_handle = {
+            let (stop, first, name, summary) = (
+                stop.clone(),
+                first.clone(),
+                sink_name.clone(),
+                &sink_summary,
+            );
+            let sink = &mut sink;
+            s.spawn(move || {
+                let mut t = Timing::new();
+                while let Some(item) = recv(&rx, &stop, &mut t) {
+                    if let Err(e) = sink.consume(item) {
+                        record(&first, &stop, &name, e);
+                        break;
+                    }
+                }
+                if stop.load(Ordering::Relaxed) {
+                    sink.abort();
+                } else {
+                    match sink.finish() {
+                        Ok(v) => *summary.lock().expect("summary") = Some(v),
+                        Err(e) => {
+                            record(&first, &stop, &name, e);
+                            sink.abort();
+                        }
+                    }
+                }
+                StageReport {
+                    name,
+                    kind: "sink".into(),
+                    busy_s: t.busy(),
+                    items_in: t.items,
+                }
+            })
+        };
+        while !sink_handle.is_finished() {
+            progress.tick();
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        for h in handles {
+            reports.push(h.join().expect("stage thread"));
+        }
+        reports.push(sink_handle.join().expect("sink thread"));
+    });
+    progress.finish();
+    failures.extend(sink.failures());
+    if let Some(e) = first.lock().expect("error slot").take() {
+        return Err(e);
+    }
+    let interrupted = INTERRUPTED.load(Ordering::SeqCst);
+    if interrupted {
+        return Err(Error::Invalid(
+            "interrupted: unfinished outputs were removed; finished inputs are in the manifest"
+                .into(),
+        ));
+    }
+    let secs = t0.elapsed().as_secs_f64();
+    let (frames, windows, samples) = (
+        Counters::get(&counters.frames),
+        Counters::get(&counters.windows),
+        Counters::get(&counters.samples),
+    );
+    let subframes = windows * plan.blur().map_or(0, |b| b.window as u64);
+    let report = Report {
+        version: env!("CARGO_PKG_VERSION"),
+        command: opts.command.clone(),
+        seed: plan.seed,
+        task_index: opts.task_index,
+        task_count: opts.task_count,
+        inputs_total: n_total,
+        inputs_selected: n_selected,
+        inputs_skipped: skipped,
+        inputs_done: Counters::get(&counters.inputs_done),
+        inputs_failed: failures
+            .into_iter()
+            .map(|(path, error)| FailedInput { path, error })
+            .collect(),
+        frames,
+        windows,
+        subframes,
+        samples,
+        seconds: secs,
+        frames_per_s: frames as f64 / secs,
+        subframes_per_s: subframes as f64 / secs,
+        samples_per_s: samples as f64 / secs,
+        stages: reports,
+        sink: sink_summary
+            .into_inner()
+            .expect("summary")
+            .unwrap_or(serde_json::Value::Null),
+        interrupted,
+        config: serde_json::to_value(&plan.resolved).unwrap_or(serde_json::Value::Null),
+    };
+    write_report(&out_dir, opts, &report)?;
+    Ok(Outcome { report, out_dir })
+}
+
+fn write_report(dir: &Path, opts: &RunOptions, r: &Report) -> Result<()> {
+    let name = if opts.task_count > 1 {
+        format!(
+            "report-{:05}-of-{:05}.json",
+            opts.task_index, opts.task_count
+        )
+    } else {
+        "report.json".into()
+    };
+    let bytes = serde_json::to_vec_pretty(r).expect("json");
+    crate::io::write_atomic(&dir.join(name), |w| w.write_all(&bytes))
+}
+
+/// Progress on stderr.
+struct Progress {
+    mode: ProgressMode,
+    counters: Arc<Counters>,
+    start: Instant,
+    last: Mutex<Instant>,
+    bars: Option<(indicatif::MultiProgress, [indicatif::ProgressBar; 3])>,
+}
+
+impl Progress {
+    fn new(mode: ProgressMode, counters: Arc<Counters>, inputs: usize) -> Progress {
+        let tty = std::io::stderr().is_terminal();
+        let bars = (mode == ProgressMode::Auto && tty).then(|| {
+            let mp = indicatif::MultiProgress::new();
+            let style =
+                indicatif::ProgressStyle::with_template("{prefix:>8} {spinner} {pos:>8} {msg}")
+                    .expect("template");
+            let mk = |p: &str| {
+                let b = mp.add(indicatif::ProgressBar::new_spinner());
+                b.set_style(style.clone());
+                b.set_prefix(p.to_string());
+                b
+            };
+            let bars = [mk("frames"), mk("windows"), mk("samples")];
+            bars[0].set_message(format!("of {inputs} inputs"));
+            (mp, bars)
+        });
+        let mode = if mode == ProgressMode::Auto && !tty {
+            ProgressMode::Lines
+        } else {
+            mode
+        };
+        Progress {
+            mode,
+            counters,
+            start: Instant::now(),
+            last: Mutex::new(Instant::now()),
+            bars,
+        }
+    }
+
+    fn line(&self) -> String {
+        let c = &self.counters;
+        let secs = self.start.elapsed().as_secs_f64().max(1e-9);
+        let f = Counters::get(&c.frames);
+        format!(
+            "{f} frames ({:.1}/s), {} windows, {} samples, inputs {}/{} done, {} failed",
+            f as f64 / secs,
+            Counters::get(&c.windows),
+            Counters::get(&c.samples),
+            Counters::get(&c.inputs_done),
+            Counters::get(&c.inputs_total),
+            Counters::get(&c.inputs_failed)
+        )
+    }
+
+    fn tick(&self) {
+        match (&self.bars, self.mode) {
+            (Some((_, b)), _) => {
+                let c = &self.counters;
+                let secs = self.start.elapsed().as_secs_f64().max(1e-9);
+                let f = Counters::get(&c.frames);
+                b[0].set_position(f);
+                b[0].set_message(format!(
+                    "{:.1} frames/s, inputs {}/{}",
+                    f as f64 / secs,
+                    Counters::get(&c.inputs_done),
+                    Counters::get(&c.inputs_total)
+                ));
+                b[1].set_position(Counters::get(&c.windows));
+                b[2].set_position(Counters::get(&c.samples));
+                b[2].set_message(format!(
+                    "{:.1} samples/s",
+                    Counters::get(&c.samples) as f64 / secs
+                ));
+            }
+            (None, ProgressMode::Lines) => {
+                let mut last = self.last.lock().expect("progress");
+                if last.elapsed() >= Duration::from_secs(5) {
+                    *last = Instant::now();
+                    eprintln!("progress: {}", self.line());
+                }
+            }
+            _ => {}
+        }
+    }
+
+    fn finish(&self) {
+        if let Some((_, b)) = &self.bars {
+            self.tick();
+            for bar in b {
+                bar.finish();
+            }
+        }
+    }
+}

@@ -1,0 +1,506 @@
+//! `coded_blur`: groups linear frames into windows of N (with a stride) and images each window
+//! through a camera: `B = sum_k w_k (PSF_k * S_k)` (weights inside the rendered kernels), by real
+//! FFTs with the products summed in the frequency domain and one inverse per channel. Borders
+//! are mirrored. The sharp target is the middle frame (frame N / 2).
+//!
+//! In patch mode (a `patches` stage downstream with `crop_first`), only each patch plus the
+//! kernel margin is cut and blurred: the same pixels as blurring the whole frame.
+
+use super::patches::Selector;
+use super::{planes, Counters, Emit, StageError, StageResult, Transform};
+use crate::frame::{Frame, Img, Input, Item, Pair, Sample};
+use crate::optics::fft::{fast_size, reflect, FftConv};
+use crate::optics::transfer::Curve;
+use crate::optics::{Camera, SubframeKernel};
+use num_complex::Complex32;
+use std::collections::{HashMap, VecDeque};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::{Arc, Mutex};
+
+/// Copies the `hp x wp`-sized region starting at (x0, y0) (may be negative or past the edge:
+/// mirrored) of a `w x h` plane into `out`; only the first `rh x rw` are filled, the rest zero.
+#[allow(clippy::too_many_arguments)]
+pub fn extract(
+    plane: &[f32],
+    w: usize,
+    h: usize,
+    x0: isize,
+    y0: isize,
+    rw: usize,
+    rh: usize,
+    wp: usize,
+    out: &mut [f32],
+) {
+    let cols: Vec<usize> = (0..rw).map(|x| reflect(x0 + x as isize, w)).collect();
+    let inside = x0 >= 0 && x0 as usize + rw <= w;
+    for y in 0..rh {
+        let sy = reflect(y0 + y as isize, h);
+        let src = &plane[sy * w..(sy + 1) * w];
+        let dst = &mut out[y * wp..y * wp + rw];
+        if inside {
+            dst.copy_from_slice(&src[x0 as usize..x0 as usize + rw]);
+        } else {
+            for (d, &c) in dst.iter_mut().zip(&cols) {
+                *d = src[c];
+            }
+        }
+        out[y * wp + rw..(y + 1) * wp].fill(0.0);
+    }
+    let total = out.len();
+    out[rh * wp..total].fill(0.0);
+}
+
+/// The numerical part of the stage: kernels, spectra caches and worker FFT plans.
+pub struct Blurrer {
+    pub camera: Arc<Camera>,
+    pub n: usize,
+    kernels: Arc<Vec<SubframeKernel>>,
+    pub margin: usize,
+    threads: usize,
+    /// Kernel spectra per padded size: [k][c].
+    spectra: HashMap<(usize, usize), Arc<Vec<[Vec<Complex32>; 3]>>>,
+    /// FFT plans per padded size, one per worker.
+    convs: HashMap<(usize, usize), Vec<Mutex<FftConv>>>,
+}
+
+impl Blurrer {
+    /// # Errors
+    /// A camera whose psi schedule does not fit N.
+    pub fn new(camera: Arc<Camera>, n: usize, threads: usize) -> crate::Result<Blurrer> {
+        let kernels = camera.window(n)?;
+        let margin = kernels.iter().map(|k| k.half_extent()).max().unwrap_or(0);
+        let threads = if threads == 0 {
+            std::thread::available_parallelism().map_or(1, |t| t.get())
+        } else {
+            threads
+        };
+        Ok(Blurrer {
+            camera,
+            n,
+            kernels,
+            margin,
+            threads,
+            spectra: HashMap::new(),
+            convs: HashMap::new(),
+        })
+    }
+
+    pub fn kernels(&self) -> &[SubframeKernel] {
+        &self.kernels
+    }
+
+    fn prepare(&mut self, hp: usize, wp: usize) -> Arc<Vec<[Vec<Complex32>; 3]>> {
+        let threads = self.threads;
+        self.convs.entry((hp, wp)).or_insert_with(|| {
+            (0..threads)
+                .map(|_| Mutex::new(FftConv::new(hp, wp)))
+                .collect()
+        });
+        if let Some(s) = self.spectra.get(&(hp, wp)) {
+            return s.clone();
+        }
+        let m = self.margin;
+        let kernels = &self.kernels;
+        let convs = &self.convs[&(hp, wp)];
+        let tasks: Vec<(usize, usize)> = (0..kernels.len())
+            .flat_map(|k| (0..3).map(move |c| (k, c)))
+            .collect();
+        let results: Vec<Mutex<Vec<Complex32>>> =
+            tasks.iter().map(|_| Mutex::new(Vec::new())).collect();
+        let next = AtomicUsize::new(0);
+        std::thread::scope(|s| {
+            for conv in convs {
+                let (tasks, results, next) = (&tasks, &results, &next);
+                s.spawn(move || {
+                    let mut conv = conv.lock().expect("conv lock");
+                    loop {
+                        let i = next.fetch_add(1, Ordering::Relaxed);
+                        let Some(&(k, c)) = tasks.get(i) else { break };
+                        *results[i].lock().expect("slot") =
+                            conv.kernel_spectrum(&kernels[k].render(c, m));
+                    }
+                });
+            }
+        });
+        let mut it = results.into_iter().map(|r| r.into_inner().expect("slot"));
+        let spectra: Vec<[Vec<Complex32>; 3]> = (0..kernels.len())
+            .map(|_| std::array::from_fn(|_| it.next().expect("3 per kernel")))
+            .collect();
+        let arc = Arc::new(spectra);
+        self.spectra.insert((hp, wp), arc.clone());
+        arc
+    }
+
+    /// Blurs the `rw x rh` region at (x0, y0) of a window of linear frames (mirrored borders);
+    /// returns planar linear RGB of that region.
+    pub fn blur_region(
+        &mut self,
+        frames: &[Arc<Frame>],
+        x0: isize,
+        y0: isize,
+        rw: usize,
+        rh: usize,
+    ) -> [Vec<f32>; 3] {
+        assert_eq!(frames.len(), self.n);
+        let m = self.margin;
+        let (hp, wp) = (fast_size(rh + 2 * m), fast_size(rw + 2 * m));
+        let spectra = self.prepare(hp, wp);
+        let convs = &self.convs[&(hp, wp)];
+        let (fw, fh) = (frames[0].width, frames[0].height);
+        let tasks: Vec<(usize, usize)> = (0..self.n)
+            .flat_map(|k| (0..3).map(move |c| (k, c)))
+            .collect();
+        let next = AtomicUsize::new(0);
+        let spec_len = convs[0].lock().expect("conv").spectrum_len();
+        // Each worker sums its own share of the products; the partial sums are added after.
+        let partials: Vec<[Vec<Complex32>; 3]> = std::thread::scope(|s| {
+            let handles: Vec<_> = convs
+                .iter()
+                .map(|conv| {
+                    let (tasks, next, spectra) = (&tasks, &next, &spectra);
+                    s.spawn(move || {
+                        let mut conv = conv.lock().expect("conv lock");
+                        let mut acc: [Vec<Complex32>; 3] = std::array::from_fn(|_| Vec::new());
+                        let mut buf = vec![0.0f32; hp * wp];
+                        loop {
+                            let i = next.fetch_add(1, Ordering::Relaxed);
+                            let Some(&(k, c)) = tasks.get(i) else { break };
+                            if acc[c].is_empty() {
+                                acc[c] = vec![Complex32::new(0.0, 0.0); spec_len];
+                            }
+                            extract(
+                                &planes(&frames[k])[c],
+                                fw,
+                                fh,
+                                x0 - m as isize,
+                                y0 - m as isize,
+                                rw + 2 * m,
+                                rh + 2 * m,
+                                wp,
+                                &mut buf,
+                            );
+                            conv.accumulate(&mut buf, &spectra[k][c], &mut acc[c]);
+                        }
+                        acc
+                    })
+                })
+                .collect();
+            handles
+                .into_iter()
+                .map(|h| h.join().expect("blur worker"))
+                .collect()
+        });
+        let mut sums: [Vec<Complex32>; 3] = std::array::from_fn(|_| Vec::new());
+        for part in partials {
+            for (c, a) in part.into_iter().enumerate() {
+                if a.is_empty() {
+                    continue;
+                }
+                if sums[c].is_empty() {
+                    sums[c] = a;
+                } else {
+                    mul_acc_add(&mut sums[c], &a);
+                }
+            }
+        }
+        // One inverse per channel, channels spread over the workers.
+        let out: Vec<Vec<f32>> = std::thread::scope(|s| {
+            let handles: Vec<_> = sums
+                .into_iter()
+                .enumerate()
+                .map(|(c, mut spec)| {
+                    let conv = &convs[c % convs.len()];
+                    s.spawn(move || {
+                        let mut conv = conv.lock().expect("conv lock");
+                        let mut full = vec![0.0f32; hp * wp];
+                        conv.inverse(&mut spec, &mut full);
+                        let mut o = Vec::with_capacity(rw * rh);
+                        for y in 0..rh {
+                            o.extend_from_slice(&full[(y + m) * wp + m..(y + m) * wp + m + rw]);
+                        }
+                        o
+                    })
+                })
+                .collect();
+            handles
+                .into_iter()
+                .map(|h| h.join().expect("inverse worker"))
+                .collect()
+        });
+        let mut it = out.into_iter();
+        std::array::from_fn(|_| it.next().expect("3 channels"))
+    }
+}
+
+fn mul_acc_add(acc: &mut [Complex32], other: &[Complex32]) {
+    for (a, b) in acc.iter_mut().zip(other) {
+        *a += b;
+    }
+}
+
+/// Crops `rw x rh` at (x, y) out of planar planes of width `w`.
+pub fn crop(
+    p: &[Vec<f32>; 3],
+    w: usize,
+    x: usize,
+    y: usize,
+    rw: usize,
+    rh: usize,
+) -> [Vec<f32>; 3] {
+    std::array::from_fn(|c| {
+        (0..rh)
+            .flat_map(|yy| {
+                p[c][(y + yy) * w + x..(y + yy) * w + x + rw]
+                    .iter()
+                    .copied()
+            })
+            .collect()
+    })
+}
+
+/// The `coded_blur` stage.
+pub struct CodedBlur {
+    pub blurrer: Blurrer,
+    pub stride: usize,
+    pub curve: Curve,
+    pub seed: u64,
+    /// Patch selector when patches are cut before blurring.
+    pub crop_first: Option<Selector>,
+    pub counters: Arc<Counters>,
+    buf: VecDeque<(u64, Arc<Frame>)>,
+    next_start: u64,
+    window: u64,
+    input: Option<Arc<Input>>,
+}
+
+impl CodedBlur {
+    pub fn new(
+        blurrer: Blurrer,
+        stride: usize,
+        curve: Curve,
+        seed: u64,
+        crop_first: Option<Selector>,
+        counters: Arc<Counters>,
+    ) -> CodedBlur {
+        CodedBlur {
+            blurrer,
+            stride,
+            curve,
+            seed,
+            crop_first,
+            counters,
+            buf: VecDeque::new(),
+            next_start: 0,
+            window: 0,
+            input: None,
+        }
+    }
+
+    fn emit_window(&mut self, input: &Arc<Input>, out: &mut Emit) -> StageResult {
+        let n = self.blurrer.n;
+        let frames: Vec<Arc<Frame>> = self.buf.iter().take(n).map(|(_, f)| f.clone()).collect();
+        let first = self.buf[0].0;
+        let (w, h) = (frames[0].width, frames[0].height);
+        let mid = &frames[n / 2];
+        let pairs = match &self.crop_first {
+            Some(sel) => {
+                let pos = sel
+                    .positions(self.seed, input.index, self.window, w, h)
+                    .map_err(|e| {
+                        StageError::Input(input.clone(), format!("{}: {e}", input.path))
+                    })?;
+                pos.into_iter()
+                    .enumerate()
+                    .map(|(i, (x, y))| {
+                        let lq = self
+                            .blurrer
+                            .blur_region(&frames, x as isize, y as isize, sel.size, sel.size);
+                        let gt = crop(planes(mid), w, x, y, sel.size, sel.size);
+                        Pair {
+                            patch: Some(i as u32),
+                            x,
+                            y,
+                            w: sel.size,
+                            h: sel.size,
+                            lq: Img::Linear(lq),
+                            gt: Img::Linear(gt),
+                        }
+                    })
+                    .collect()
+            }
+            None => {
+                let lq = self.blurrer.blur_region(&frames, 0, 0, w, h);
+                vec![Pair {
+                    patch: None,
+                    x: 0,
+                    y: 0,
+                    w,
+                    h,
+                    lq: Img::Linear(lq),
+                    gt: Img::Linear(planes(mid).clone()),
+                }]
+            }
+        };
+        let kernels = self.blurrer.kernels();
+        let sample = Sample {
+            input: input.clone(),
+            window: self.window,
+            first_frame: first,
+            frames: n,
+            camera: self.blurrer.camera.kind(),
+            psi: kernels.iter().map(|k| k.psi).collect(),
+            curve: self.curve,
+            sigma: None,
+            light_throughput: self.blurrer.camera.light_throughput(),
+            frame_width: w,
+            frame_height: h,
+            cropped: self.crop_first.is_some(),
+            pairs,
+        };
+        Counters::add(&self.counters.windows, 1);
+        self.window += 1;
+        out.send(Item::Sample(Box::new(sample)));
+        Ok(())
+    }
+}
+
+impl Transform for CodedBlur {
+    fn process(&mut self, item: Item, out: &mut Emit) -> StageResult {
+        match item {
+            Item::Begin(input, info) => {
+                self.buf.clear();
+                self.next_start = 0;
+                self.window = 0;
+                self.input = Some(input.clone());
+                out.send(Item::Begin(input, info));
+            }
+            Item::Frame(input, idx, f) => {
+                if idx >= self.next_start {
+                    self.buf.push_back((idx, f));
+                }
+                while self.buf.len() >= self.blurrer.n {
+                    self.emit_window(&input, out)?;
+                    self.next_start += self.stride as u64;
+                    while self.buf.front().is_some_and(|(i, _)| *i < self.next_start) {
+                        self.buf.pop_front();
+                    }
+                }
+            }
+            Item::End(input, res) => {
+                self.buf.clear();
+                let res = match res {
+                    Ok(()) if self.window == 0 => Err(format!(
+                        "{}: shorter than one window of {} frames",
+                        input.path, self.blurrer.n
+                    )),
+                    other => other,
+                };
+                out.send(Item::End(input, res));
+            }
+            other => {
+                out.send(other);
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::frame::FrameData;
+    use crate::optics::fft::convolve_direct;
+    use crate::optics::{CameraConfig, CameraKind, OpticsConfig};
+
+    fn frames(n: usize, w: usize, h: usize, seed: u64) -> Vec<Arc<Frame>> {
+        (0..n)
+            .map(|k| {
+                let p = std::array::from_fn(|c| {
+                    (0..w * h)
+                        .map(|i| {
+                            crate::rng::unit(crate::rng::hash(&[
+                                seed, k as u64, c as u64, i as u64,
+                            ])) as f32
+                        })
+                        .collect()
+                });
+                Arc::new(Frame {
+                    width: w,
+                    height: h,
+                    data: FrameData::Planar(p),
+                })
+            })
+            .collect()
+    }
+
+    #[test]
+    fn window_blur_equals_sum_of_direct_convolutions() {
+        let cam = Arc::new(Camera::new(
+            &OpticsConfig {
+                airy_radius_px: Some(0.8),
+                ..Default::default()
+            },
+            &CameraConfig::new(CameraKind::PhaseCoded),
+        ));
+        let mut b = Blurrer::new(cam, 3, 2).unwrap();
+        let (w, h) = (40, 30);
+        let fr = frames(3, w, h, 1);
+        let got = b.blur_region(&fr, 0, 0, w, h);
+        let m = b.margin;
+        for c in 0..3 {
+            let mut want = vec![0.0f32; w * h];
+            for (k, f) in fr.iter().enumerate() {
+                let d = convolve_direct(&planes(f)[c], h, w, &b.kernels()[k].render(c, m));
+                want.iter_mut().zip(d).for_each(|(a, v)| *a += v);
+            }
+            let worst = got[c]
+                .iter()
+                .zip(&want)
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0, f32::max);
+            assert!(worst < 1e-4, "channel {c}: {worst}");
+        }
+    }
+
+    #[test]
+    fn crop_then_blur_equals_blur_then_crop() {
+        let cam = Arc::new(Camera::new(
+            &OpticsConfig::default(),
+            &CameraConfig::new(CameraKind::PhaseCoded),
+        ));
+        let mut b = Blurrer::new(cam, 5, 2).unwrap();
+        let (w, h) = (96, 80);
+        let fr = frames(5, w, h, 2);
+        let full = b.blur_region(&fr, 0, 0, w, h);
+        // A patch at the corner (mirrored borders inside the margin) and one inside.
+        for (x, y) in [(0usize, 0usize), (41, 23)] {
+            let part = b.blur_region(&fr, x as isize, y as isize, 32, 32);
+            let want = crop(&full, w, x, y, 32, 32);
+            for c in 0..3 {
+                let worst = part[c]
+                    .iter()
+                    .zip(&want[c])
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f32::max);
+                assert!(worst < 2e-5, "patch ({x},{y}) channel {c}: {worst}");
+            }
+        }
+    }
+
+    #[test]
+    fn identical_frames_through_conventional_give_the_frame_back() {
+        let cam = Arc::new(Camera::new(
+            &OpticsConfig::default(),
+            &CameraConfig::new(CameraKind::Conventional),
+        ));
+        let mut b = Blurrer::new(cam, 9, 2).unwrap();
+        let one = frames(1, 33, 21, 5).remove(0);
+        let fr = vec![one.clone(); 9];
+        let got = b.blur_region(&fr, 0, 0, 33, 21);
+        for c in 0..3 {
+            for (a, v) in got[c].iter().zip(&planes(&one)[c]) {
+                assert!((a - v).abs() < 1e-5);
+            }
+        }
+    }
+}
