@@ -25,6 +25,22 @@ pub struct VideoReader {
     flushed: bool,
     done: bool,
     pub frames_decoded: u64,
+    /// Bits per component of the source; up to 8 goes through RGB24 and is expanded exactly
+    /// (v * 257), deeper sources through RGB48.
+    pub bit_depth: u32,
+}
+
+/// Bits of the first component of a pixel format.
+fn depth_of(p: ff::format::Pixel) -> u32 {
+    // SAFETY: av_pix_fmt_desc_get returns null or a pointer to a static descriptor.
+    unsafe {
+        let d = ff::ffi::av_pix_fmt_desc_get(p.into());
+        if d.is_null() {
+            8
+        } else {
+            (*d).comp[0].depth as u32
+        }
+    }
 }
 
 fn fmt_err(e: ff::Error) -> String {
@@ -74,8 +90,14 @@ impl VideoReader {
             fps,
             frames_announced: (announced > 0).then_some(announced as u64),
             codec,
-            pixel_format: format!("{:?}", decoder.format()).to_lowercase(),
+            pixel_format: format!(
+                "{:?} ({} bit)",
+                decoder.format(),
+                depth_of(decoder.format())
+            )
+            .to_lowercase(),
         };
+        let bit_depth = depth_of(decoder.format());
         if info.width == 0 || info.height == 0 {
             return Err("video stream has no size".into());
         }
@@ -90,22 +112,30 @@ impl VideoReader {
             flushed: false,
             done: false,
             frames_decoded: 0,
+            bit_depth,
         })
     }
 
     fn convert(&mut self) -> Result<Frame, String> {
         let (w, h) = (self.decoded.width(), self.decoded.height());
+        let deep = self.bit_depth > 8;
+        let target = if deep {
+            ff::format::Pixel::RGB48LE
+        } else {
+            ff::format::Pixel::RGB24
+        };
         if self.scaler.is_none() {
+            let flags = ff::software::scaling::Flags::BILINEAR
+                | ff::software::scaling::Flags::ACCURATE_RND
+                | ff::software::scaling::Flags::FULL_CHR_H_INT;
             let mut sc = ff::software::scaling::Context::get(
                 self.decoded.format(),
                 w,
                 h,
-                ff::format::Pixel::RGB48LE,
+                target,
                 w,
                 h,
-                ff::software::scaling::Flags::BILINEAR
-                    | ff::software::scaling::Flags::ACCURATE_RND
-                    | ff::software::scaling::Flags::FULL_CHR_H_INT,
+                flags,
             )
             .map_err(fmt_err)?;
             set_colorspace(&mut sc, &self.decoded);
@@ -121,11 +151,19 @@ impl VideoReader {
         let (w, h) = (w as usize, h as usize);
         let mut out = Vec::with_capacity(w * h * 3);
         for y in 0..h {
-            let row = &bytes[y * stride..y * stride + w * 6];
-            out.extend(
-                row.chunks_exact(2)
-                    .map(|b| u16::from_le_bytes([b[0], b[1]])),
-            );
+            if deep {
+                let row = &bytes[y * stride..y * stride + w * 6];
+                out.extend(
+                    row.chunks_exact(2)
+                        .map(|b| u16::from_le_bytes([b[0], b[1]])),
+                );
+            } else {
+                out.extend(
+                    bytes[y * stride..y * stride + w * 3]
+                        .iter()
+                        .map(|&v| v as u16 * 257),
+                );
+            }
         }
         Ok(Frame {
             width: w,
@@ -198,6 +236,15 @@ impl VideoReader {
 /// BT.601 otherwise) and asks for full-range RGB.
 fn set_colorspace(sc: &mut ff::software::scaling::Context, frame: &ff::frame::Video) {
     use ff::ffi;
+    // SAFETY: av_pix_fmt_desc_get returns null or a pointer to a static descriptor.
+    let rgb = unsafe {
+        let d = ffi::av_pix_fmt_desc_get(frame.format().into());
+        !d.is_null() && (*d).flags & ffi::AV_PIX_FMT_FLAG_RGB as u64 != 0
+    };
+    if rgb {
+        // RGB sources are full range and need no matrix.
+        return;
+    }
     let cs = match frame.color_space() {
         ff::color::Space::BT709 => ffi::SWS_CS_ITU709,
         ff::color::Space::BT2020NCL | ff::color::Space::BT2020CL => ffi::SWS_CS_BT2020,
@@ -205,8 +252,9 @@ fn set_colorspace(sc: &mut ff::software::scaling::Context, frame: &ff::frame::Vi
         ff::color::Space::FCC => ffi::SWS_CS_FCC,
         _ => ffi::SWS_CS_DEFAULT,
     };
-    let src_full =
-        i32::from(frame.color_range() == ff::color::Range::JPEG || is_rgb_or_full(frame.format()));
+    let src_full = i32::from(
+        frame.color_range() == ff::color::Range::JPEG || is_full_range_yuv(frame.format()),
+    );
     // SAFETY: the context pointer is valid for the scaler's lifetime; the coefficient tables are
     // static arrays owned by libswscale.
     unsafe {
@@ -224,7 +272,7 @@ fn set_colorspace(sc: &mut ff::software::scaling::Context, frame: &ff::frame::Vi
     }
 }
 
-fn is_rgb_or_full(p: ff::format::Pixel) -> bool {
+fn is_full_range_yuv(p: ff::format::Pixel) -> bool {
     use ff::format::Pixel::*;
     matches!(p, YUVJ420P | YUVJ422P | YUVJ444P)
 }

@@ -17,6 +17,9 @@ use std::collections::{HashMap, VecDeque};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
+/// Sub-frames summed per task (fixed, so results do not depend on the thread count).
+const CHUNK: usize = 3;
+
 /// Copies the `hp x wp`-sized region starting at (x0, y0) (may be negative or past the edge:
 /// mirrored) of a `w x h` plane into `out`; only the first `rh x rw` are filled, the rest zero.
 #[allow(clippy::too_many_arguments)]
@@ -147,27 +150,28 @@ impl Blurrer {
         let spectra = self.prepare(hp, wp);
         let convs = &self.convs[&(hp, wp)];
         let (fw, fh) = (frames[0].width, frames[0].height);
-        let tasks: Vec<(usize, usize)> = (0..self.n)
-            .flat_map(|k| (0..3).map(move |c| (k, c)))
+        // Tasks are (channel, chunk of CHUNK sub-frames); each sums its chunk in k order into its
+        // own slot and the slots are added in chunk order, so the result does not depend on
+        // which worker ran what or on the number of workers: same bytes on any machine.
+        let chunks = self.n.div_ceil(CHUNK);
+        let tasks: Vec<(usize, usize)> = (0..3)
+            .flat_map(|c| (0..chunks).map(move |j| (c, j)))
             .collect();
+        let slots: Vec<Mutex<Vec<Complex32>>> =
+            tasks.iter().map(|_| Mutex::new(Vec::new())).collect();
         let next = AtomicUsize::new(0);
-        let spec_len = convs[0].lock().expect("conv").spectrum_len();
-        // Each worker sums its own share of the products; the partial sums are added after.
-        let partials: Vec<[Vec<Complex32>; 3]> = std::thread::scope(|s| {
-            let handles: Vec<_> = convs
-                .iter()
-                .map(|conv| {
-                    let (tasks, next, spectra) = (&tasks, &next, &spectra);
-                    s.spawn(move || {
-                        let mut conv = conv.lock().expect("conv lock");
-                        let mut acc: [Vec<Complex32>; 3] = std::array::from_fn(|_| Vec::new());
-                        let mut buf = vec![0.0f32; hp * wp];
-                        loop {
-                            let i = next.fetch_add(1, Ordering::Relaxed);
-                            let Some(&(k, c)) = tasks.get(i) else { break };
-                            if acc[c].is_empty() {
-                                acc[c] = vec![Complex32::new(0.0, 0.0); spec_len];
-                            }
+        let n = self.n;
+        std::thread::scope(|s| {
+            for conv in convs {
+                let (tasks, next, spectra, slots) = (&tasks, &next, &spectra, &slots);
+                s.spawn(move || {
+                    let mut conv = conv.lock().expect("conv lock");
+                    let mut buf = vec![0.0f32; hp * wp];
+                    loop {
+                        let i = next.fetch_add(1, Ordering::Relaxed);
+                        let Some(&(c, j)) = tasks.get(i) else { break };
+                        let mut acc = conv.zero_spectrum();
+                        for k in j * CHUNK..((j + 1) * CHUNK).min(n) {
                             extract(
                                 &planes(&frames[k])[c],
                                 fw,
@@ -179,30 +183,21 @@ impl Blurrer {
                                 wp,
                                 &mut buf,
                             );
-                            conv.accumulate(&mut buf, &spectra[k][c], &mut acc[c]);
+                            conv.accumulate(&mut buf, &spectra[k][c], &mut acc);
                         }
-                        acc
-                    })
-                })
-                .collect();
-            handles
-                .into_iter()
-                .map(|h| h.join().expect("blur worker"))
-                .collect()
-        });
-        let mut sums: [Vec<Complex32>; 3] = std::array::from_fn(|_| Vec::new());
-        for part in partials {
-            for (c, a) in part.into_iter().enumerate() {
-                if a.is_empty() {
-                    continue;
-                }
-                if sums[c].is_empty() {
-                    sums[c] = a;
-                } else {
-                    mul_acc_add(&mut sums[c], &a);
-                }
+                        *slots[i].lock().expect("slot") = acc;
+                    }
+                });
             }
-        }
+        });
+        let mut slots = slots.into_iter().map(|s| s.into_inner().expect("slot"));
+        let sums: [Vec<Complex32>; 3] = std::array::from_fn(|_| {
+            let mut sum = slots.next().expect("first chunk");
+            for _ in 1..chunks {
+                mul_acc_add(&mut sum, &slots.next().expect("chunk"));
+            }
+            sum
+        });
         // One inverse per channel, channels spread over the workers.
         let out: Vec<Vec<f32>> = std::thread::scope(|s| {
             let handles: Vec<_> = sums

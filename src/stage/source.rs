@@ -90,31 +90,32 @@ impl Source for Decode {
                 return Ok(());
             }
             let mut n = 0u64;
-            let end =
-                loop {
-                    if out.stop.load(Ordering::Relaxed) {
-                        return Ok(());
-                    }
-                    if self.max_frames > 0 && n >= self.max_frames {
-                        break Ok(());
-                    }
-                    match reader.next_frame() {
-                        Ok(Some(f)) => {
-                            Counters::add(&self.counters.frames, 1);
-                            if !out.send(Item::Frame(input.clone(), n, Arc::new(f))) {
-                                return Ok(());
-                            }
-                            n += 1;
+            let end = loop {
+                if out.stop.load(Ordering::Relaxed) {
+                    return Ok(());
+                }
+                if self.max_frames > 0 && n >= self.max_frames {
+                    break Ok(());
+                }
+                match reader.next_frame() {
+                    Ok(Some(f)) => {
+                        Counters::add(&self.counters.frames, 1);
+                        if !out.send(Item::Frame(input.clone(), n, Arc::new(f))) {
+                            return Ok(());
                         }
-                        Ok(None) => match reader.info.frames_announced {
-                            Some(a) if n < a => break Err(format!(
-                                "truncated: decoded {n} of the {a} frames the container announces"
-                            )),
-                            _ => break Ok(()),
-                        },
-                        Err(e) => break Err(e),
+                        n += 1;
                     }
-                };
+                    Ok(None) => match reader.info.frames_announced {
+                        Some(a) if n < a => {
+                            break Err(format!(
+                                "truncated: decoded {n} of the {a} frames the container announces"
+                            ))
+                        }
+                        _ => break Ok(()),
+                    },
+                    Err(e) => break Err(e),
+                }
+            };
             let end = end.map_err(|e| format!("{}: {e}", path.display()));
             if !out.send(Item::End(input.clone(), end)) {
                 return Ok(());

@@ -1,4 +1,5 @@
 //! Integration tests: one binary (links once), one module per capability.
 
 mod common;
+mod generate;
 mod psf_cli;
