@@ -343,7 +343,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
                     }
                 }
             }
-            crate::config::apply_sets(&mut table, &a.common.sets).map_err(crate::Error::Invalid)?;
+            crate::config::apply_sets(&mut table, &a.common.sets)
+                .map_err(crate::Error::ConfigText)?;
             let origin = a
                 .config
                 .as_ref()

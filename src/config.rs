@@ -408,8 +408,8 @@ pub fn load(path: &Path, sets: &[String]) -> Result<toml::Table, crate::Error> {
 /// See [`load`].
 pub fn parse(text: &str, origin: &str, sets: &[String]) -> Result<toml::Table, crate::Error> {
     let mut table: toml::Table =
-        toml::from_str(text).map_err(|e| crate::Error::Invalid(format!("{origin}: {e}")))?;
-    apply_sets(&mut table, sets).map_err(crate::Error::Invalid)?;
+        toml::from_str(text).map_err(|e| crate::Error::ConfigText(format!("{origin}: {e}")))?;
+    apply_sets(&mut table, sets).map_err(crate::Error::ConfigText)?;
     Ok(table)
 }
 
@@ -545,7 +545,7 @@ pub fn plan(table: toml::Table, origin: &str) -> Result<Plan, crate::Error> {
         toml::Value::Table(table.clone())
             .try_into()
             .map_err(|e: toml::de::Error| {
-                crate::Error::Invalid(format!("{origin}: {}", e.to_string().trim()))
+                crate::Error::ConfigText(format!("{origin}: {}", e.to_string().trim()))
             })?;
     let mut errs: Vec<ConfigError> = Vec::new();
     let err = |key: String, message: String| ConfigError { key, message };

@@ -14,6 +14,9 @@ pub enum Error {
     Config(Vec<crate::optics::ConfigError>),
     #[error("{0}")]
     Invalid(String),
+    /// A pipeline file that does not parse or has an unknown key.
+    #[error("{0}")]
+    ConfigText(String),
     #[error("{0} input(s) failed; see report.json")]
     InputsFailed(usize),
 }

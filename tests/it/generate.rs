@@ -268,3 +268,144 @@ fn identical_frames_through_the_conventional_camera_give_the_frame_back() {
         );
     }
 }
+
+#[test]
+fn ten_bit_input_is_decoded_with_its_depth() {
+    let v = clip(
+        "ten-bit.mkv",
+        &["-f", "lavfi", "-i", "mandelbrot=size=160x144:rate=240:start_scale=1.5:end_scale=1.5,crop=144:128:x='8*t*10':y=4", "-frames:v", "18", "-c:v", "ffv1", "-pix_fmt", "yuv444p10le"],
+    );
+    let d = scratch("gen_10bit");
+    ok(&generate(
+        &d,
+        &[v.to_str().unwrap()],
+        &["transforms.patches.per_window=2"],
+    ));
+    let r: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(d.join("report.json")).unwrap()).unwrap();
+    assert_eq!(r["samples"], 4);
+    let m = shard_members(&d);
+    let (w, h, px) = pipeline::io::png::read_rgb8(&m[1].1).unwrap();
+    assert_eq!((w, h), (128, 128));
+    assert!(px.iter().any(|&v| v > 40), "a real image, not black");
+}
+
+#[test]
+fn two_tasks_give_the_same_samples_as_one_run_and_reruns_skip_finished_inputs() {
+    let a = clip(
+        "part-a.mp4",
+        &[
+            "-i",
+            FIXTURE,
+            "-frames:v",
+            "18",
+            "-c:v",
+            "libx264",
+            "-preset",
+            "ultrafast",
+        ],
+    );
+    let b = clip(
+        "part-b.mp4",
+        &[
+            "-ss",
+            "0.5",
+            "-i",
+            FIXTURE,
+            "-frames:v",
+            "18",
+            "-c:v",
+            "libx264",
+            "-preset",
+            "ultrafast",
+        ],
+    );
+    let c = clip(
+        "part-c.mp4",
+        &[
+            "-ss",
+            "1.0",
+            "-i",
+            FIXTURE,
+            "-frames:v",
+            "18",
+            "-c:v",
+            "libx264",
+            "-preset",
+            "ultrafast",
+        ],
+    );
+    let inputs = [
+        a.to_str().unwrap(),
+        b.to_str().unwrap(),
+        c.to_str().unwrap(),
+    ];
+    let one = scratch("gen_tasks_one");
+    ok(&generate(&one, &inputs, &[]));
+    let split = scratch("gen_tasks_split");
+    for i in ["0", "1"] {
+        let o = bin()
+            .arg("generate")
+            .args(inputs)
+            .args([
+                "-o",
+                split.to_str().unwrap(),
+                "--progress",
+                "never",
+                "--shard-index",
+                i,
+                "--shard-count",
+                "2",
+            ])
+            .output()
+            .unwrap();
+        ok(&o);
+    }
+    let names = files(&split);
+    assert!(
+        names.contains(&"manifest-00000-of-00002.json".to_string())
+            && names.contains(&"manifest-00001-of-00002.json".to_string()),
+        "{names:?}"
+    );
+    let mut m1: BTreeMap<String, Vec<u8>> = shard_members(&one).into_iter().collect();
+    let m2: BTreeMap<String, Vec<u8>> = shard_members(&split).into_iter().collect();
+    assert_eq!(m1.len(), 3 * 2 * 8 * 3);
+    assert_eq!(m1.keys().collect::<Vec<_>>(), m2.keys().collect::<Vec<_>>());
+    for (k, v) in &m2 {
+        assert!(m1.remove(k).unwrap() == *v, "{k} differs");
+    }
+    // A rerun skips every input the manifest lists and rewrites nothing.
+    let before = std::fs::metadata(one.join("train-00001-0000.tar"))
+        .unwrap()
+        .modified()
+        .unwrap();
+    let o = generate(&one, &inputs, &[]);
+    ok(&o);
+    assert!(stderr(&o).contains("3 skipped"), "{}", stderr(&o));
+    assert_eq!(
+        std::fs::metadata(one.join("train-00001-0000.tar"))
+            .unwrap()
+            .modified()
+            .unwrap(),
+        before
+    );
+    // The Slurm variables pick the task when no flag is given.
+    let slurm = scratch("gen_tasks_slurm");
+    let o = bin()
+        .arg("generate")
+        .args(inputs)
+        .args(["-o", slurm.to_str().unwrap(), "--progress", "never"])
+        .env("SLURM_ARRAY_TASK_ID", "1")
+        .env("SLURM_ARRAY_TASK_COUNT", "2")
+        .output()
+        .unwrap();
+    ok(&o);
+    assert_eq!(
+        files(&slurm)
+            .iter()
+            .filter(|f| f.ends_with(".tar"))
+            .cloned()
+            .collect::<Vec<_>>(),
+        vec!["train-00001-0000.tar"]
+    );
+}

@@ -1,5 +1,6 @@
 //! Integration tests: one binary (links once), one module per capability.
 
+mod bad_input;
 mod common;
 mod generate;
 mod psf_cli;
