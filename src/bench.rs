@@ -38,9 +38,7 @@ pub fn psf(kind: CameraKind, window: usize, repeats: usize) -> PsfBench {
     for _ in 0..repeats.max(1) {
         let cam = Camera::new(&optics, &CameraConfig::new(kind));
         let t = Instant::now();
-        let w = cam
-            .window(window)
-            .expect("default schedule fits any window");
+        let w = cam.window(window).expect("default schedule fits any window");
         cold.push(t.elapsed().as_secs_f64() * 1e3);
         kernel_px = w[0].psf.size;
         let t = Instant::now();

@@ -180,8 +180,7 @@ fn run_psf(a: PsfArgs) -> anyhow::Result<()> {
     let file = match &a.config {
         Some(p) => {
             let text = std::fs::read_to_string(p).with_context(|| format!("{}", p.display()))?;
-            toml::from_str::<OpticsFile>(&text)
-                .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?
+            toml::from_str::<OpticsFile>(&text).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?
         }
         None => OpticsFile::default(),
     };
@@ -243,11 +242,7 @@ pub const GENERATE_TOML: &str = include_str!("../pipelines/generate.toml");
 
 fn env_usize(name: &str) -> anyhow::Result<Option<usize>> {
     match std::env::var(name) {
-        Ok(v) if !v.trim().is_empty() => v
-            .trim()
-            .parse()
-            .map(Some)
-            .map_err(|_| anyhow::anyhow!("{name}={v:?} is not a whole number")),
+        Ok(v) if !v.trim().is_empty() => v.trim().parse().map(Some).map_err(|_| anyhow::anyhow!("{name}={v:?} is not a whole number")),
         _ => Ok(None),
     }
 }
@@ -256,9 +251,7 @@ fn env_usize(name: &str) -> anyhow::Result<Option<usize>> {
 fn task_split(c: &RunCommon) -> anyhow::Result<(usize, usize)> {
     let index = match c.shard_index {
         Some(i) => i,
-        None => env_usize("SLURM_ARRAY_TASK_ID")?
-            .or(env_usize("JOB_COMPLETION_INDEX")?)
-            .unwrap_or(0),
+        None => env_usize("SLURM_ARRAY_TASK_ID")?.or(env_usize("JOB_COMPLETION_INDEX")?).unwrap_or(0),
     };
     let count = match c.shard_count {
         Some(n) => n,
@@ -270,23 +263,13 @@ fn task_split(c: &RunCommon) -> anyhow::Result<(usize, usize)> {
     Ok((index, count))
 }
 
-fn run_plan(
-    table: toml::Table,
-    origin: &str,
-    out: Option<&PathBuf>,
-    c: &RunCommon,
-) -> anyhow::Result<()> {
+fn run_plan(table: toml::Table, origin: &str, out: Option<&PathBuf>, c: &RunCommon) -> anyhow::Result<()> {
     let mut plan = crate::config::plan(table, origin)?;
     if let Some(o) = out {
         plan.set_out_dir(o);
     }
     let (task_index, task_count) = task_split(c)?;
-    let opts = RunOptions {
-        task_index,
-        task_count,
-        progress: c.progress,
-        command: std::env::args().collect::<Vec<_>>().join(" "),
-    };
+    let opts = RunOptions { task_index, task_count, progress: c.progress, command: std::env::args().collect::<Vec<_>>().join(" ") };
     let o = crate::graph::run(&plan, &opts)?;
     let r = &o.report;
     eprintln!(
@@ -320,9 +303,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Generate(a) => {
             let mut table = match &a.config {
                 Some(p) => crate::config::load(p, &[])?,
-                None => {
-                    crate::config::parse(GENERATE_TOML, "pipelines/generate.toml (embedded)", &[])?
-                }
+                None => crate::config::parse(GENERATE_TOML, "pipelines/generate.toml (embedded)", &[])?,
             };
             if !a.videos.is_empty() {
                 let sources = table
@@ -331,52 +312,25 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
                     .ok_or_else(|| anyhow::anyhow!("the pipeline has no [sources]"))?;
                 for (_, src) in sources.iter_mut() {
                     if let Some(t) = src.as_table_mut() {
-                        t.insert(
-                            "paths".into(),
-                            toml::Value::Array(
-                                a.videos
-                                    .iter()
-                                    .map(|v| toml::Value::String(v.clone()))
-                                    .collect(),
-                            ),
-                        );
+                        t.insert("paths".into(), toml::Value::Array(a.videos.iter().map(|v| toml::Value::String(v.clone())).collect()));
                     }
                 }
             }
-            crate::config::apply_sets(&mut table, &a.common.sets)
-                .map_err(crate::Error::ConfigText)?;
-            let origin = a
-                .config
-                .as_ref()
-                .map_or("pipelines/generate.toml (embedded)".to_string(), |p| {
-                    p.display().to_string()
-                });
+            crate::config::apply_sets(&mut table, &a.common.sets).map_err(crate::Error::ConfigText)?;
+            let origin = a.config.as_ref().map_or("pipelines/generate.toml (embedded)".to_string(), |p| p.display().to_string());
             run_plan(table, &origin, a.out.as_ref(), &a.common)
         }
         Command::Run(a) => {
             let table = crate::config::load(&a.pipeline, &a.common.sets)?;
-            run_plan(
-                table,
-                &a.pipeline.display().to_string(),
-                a.out.as_ref(),
-                &a.common,
-            )
+            run_plan(table, &a.pipeline.display().to_string(), a.out.as_ref(), &a.common)
         }
         Command::Validate { pipelines, sets } => {
             let mut bad = 0;
             for p in &pipelines {
-                match crate::config::load(p, &sets)
-                    .and_then(|t| crate::config::plan(t, &p.display().to_string()))
-                {
-                    Ok(plan) => println!(
-                        "{}: ok ({})",
-                        p.display(),
-                        plan.stages
-                            .iter()
-                            .map(|(n, _)| n.as_str())
-                            .collect::<Vec<_>>()
-                            .join(" -> ")
-                    ),
+                match crate::config::load(p, &sets).and_then(|t| crate::config::plan(t, &p.display().to_string())) {
+                    Ok(plan) => {
+                        println!("{}: ok ({})", p.display(), plan.stages.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>().join(" -> "))
+                    }
                     Err(e) => {
                         bad += 1;
                         for line in e.to_string().lines() {
@@ -394,11 +348,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             }
             Ok(())
         }
-        Command::Bench(BenchCommand::Psf {
-            camera,
-            window,
-            repeats,
-        }) => {
+        Command::Bench(BenchCommand::Psf { camera, window, repeats }) => {
             let r = crate::bench::psf(camera, window as usize, repeats as usize);
             eprintln!(
                 "{} window {}: kernels {} px; cold {:.1} ms (median of {}), cached {:.2} us; ratio {:.0}x",

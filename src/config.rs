@@ -115,6 +115,14 @@ pub struct BlurConfig {
     /// Worker threads for the FFTs (0: all cores).
     #[serde(default)]
     pub threads: usize,
+    /// Relative error allowed when factorising the window's kernels into fewer FFTs
+    /// (0: exact, one direction per distinct kernel).
+    #[serde(default = "default_rank_tolerance")]
+    pub rank_tolerance: f64,
+}
+
+fn default_rank_tolerance() -> f64 {
+    1e-3
 }
 
 fn default_window() -> usize {
@@ -233,11 +241,21 @@ fn default_format() -> ImageFormat {
     ImageFormat::Png
 }
 
+/// `type = "blackhole"`: counts samples and drops them (benchmarks, dry runs).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BlackholeConfig {
+    pub inputs: Vec<String>,
+    #[serde(default = "default_dir")]
+    pub dir: String,
+}
+
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "snake_case")]
 pub enum SinkConfig {
     Shards(ShardsConfig),
     Frames(FramesConfig),
+    Blackhole(BlackholeConfig),
 }
 
 /// `[run]`: how the graph runs.
@@ -250,9 +268,7 @@ pub struct RunConfig {
 
 impl Default for RunConfig {
     fn default() -> Self {
-        RunConfig {
-            channel_capacity: 4,
-        }
+        RunConfig { channel_capacity: 4 }
     }
 }
 
@@ -345,6 +361,7 @@ impl Plan {
         match self.sink() {
             SinkConfig::Shards(s) => PathBuf::from(&s.dir),
             SinkConfig::Frames(f) => PathBuf::from(&f.dir),
+            SinkConfig::Blackhole(b) => PathBuf::from(&b.dir),
         }
     }
     pub fn set_out_dir(&mut self, dir: &Path) {
@@ -352,6 +369,7 @@ impl Plan {
         match self.sink_mut() {
             SinkConfig::Shards(s) => s.dir = d,
             SinkConfig::Frames(f) => f.dir = d,
+            SinkConfig::Blackhole(b) => b.dir = d,
         }
     }
 }
@@ -363,9 +381,7 @@ impl Plan {
 /// A `--set` without `=`, or a path through a value that is not a table.
 pub fn apply_sets(table: &mut toml::Table, sets: &[String]) -> Result<(), String> {
     for s in sets {
-        let (path, value) = s
-            .split_once('=')
-            .ok_or_else(|| format!("--set {s:?}: expected key.path=value"))?;
+        let (path, value) = s.split_once('=').ok_or_else(|| format!("--set {s:?}: expected key.path=value"))?;
         let value = value.trim();
         let parsed: toml::Value = toml::from_str::<toml::Table>(&format!("v = {value}"))
             .ok()
@@ -377,12 +393,8 @@ pub fn apply_sets(table: &mut toml::Table, sets: &[String]) -> Result<(), String
             if i + 1 == keys.len() {
                 cur.insert(k.to_string(), parsed.clone());
             } else {
-                let next = cur
-                    .entry(k.to_string())
-                    .or_insert_with(|| toml::Value::Table(toml::Table::new()));
-                cur = next
-                    .as_table_mut()
-                    .ok_or_else(|| format!("--set {path}: {k} is not a table"))?;
+                let next = cur.entry(k.to_string()).or_insert_with(|| toml::Value::Table(toml::Table::new()));
+                cur = next.as_table_mut().ok_or_else(|| format!("--set {path}: {k} is not a table"))?;
             }
         }
     }
@@ -395,10 +407,7 @@ pub fn apply_sets(table: &mut toml::Table, sets: &[String]) -> Result<(), String
 /// # Errors
 /// See above.
 pub fn load(path: &Path, sets: &[String]) -> Result<toml::Table, crate::Error> {
-    let text = std::fs::read_to_string(path).map_err(|e| crate::Error::Io {
-        path: path.to_path_buf(),
-        source: e,
-    })?;
+    let text = std::fs::read_to_string(path).map_err(|e| crate::Error::Io { path: path.to_path_buf(), source: e })?;
     parse(&text, &path.display().to_string(), sets)
 }
 
@@ -407,8 +416,7 @@ pub fn load(path: &Path, sets: &[String]) -> Result<toml::Table, crate::Error> {
 /// # Errors
 /// See [`load`].
 pub fn parse(text: &str, origin: &str, sets: &[String]) -> Result<toml::Table, crate::Error> {
-    let mut table: toml::Table =
-        toml::from_str(text).map_err(|e| crate::Error::ConfigText(format!("{origin}: {e}")))?;
+    let mut table: toml::Table = toml::from_str(text).map_err(|e| crate::Error::ConfigText(format!("{origin}: {e}")))?;
     apply_sets(&mut table, sets).map_err(crate::Error::ConfigText)?;
     Ok(table)
 }
@@ -419,11 +427,7 @@ fn edit_distance(a: &str, b: &str) -> usize {
     for (i, ca) in a.chars().enumerate() {
         let mut cur = vec![i + 1];
         for (j, cb) in b.iter().enumerate() {
-            cur.push(
-                (prev[j] + usize::from(ca != *cb))
-                    .min(prev[j + 1] + 1)
-                    .min(cur[j] + 1),
-            );
+            cur.push((prev[j] + usize::from(ca != *cb)).min(prev[j + 1] + 1).min(cur[j] + 1));
         }
         prev = cur;
     }
@@ -443,6 +447,7 @@ fn sink_inputs(s: &SinkConfig) -> &[String] {
     match s {
         SinkConfig::Shards(c) => &c.inputs,
         SinkConfig::Frames(c) => &c.inputs,
+        SinkConfig::Blackhole(c) => &c.inputs,
     }
 }
 
@@ -457,16 +462,12 @@ fn check_transform(name: &str, t: &TransformConfig) -> Vec<ConfigError> {
                 c.range_usize("stride", s, 1, 4096);
             }
             c.range_usize("threads", b.threads, 0, 256);
-            c.errors
-                .extend(b.camera.validate(&format!("{prefix}.camera")));
-            c.errors
-                .extend(b.optics.validate(&format!("{prefix}.optics")));
+            c.range("rank_tolerance", b.rank_tolerance, 0.0, 0.1);
+            c.errors.extend(b.camera.validate(&format!("{prefix}.camera")));
+            c.errors.extend(b.optics.validate(&format!("{prefix}.optics")));
             if let Some(v) = &b.camera.psi_values {
                 if v.len() != b.window {
-                    c.fail(
-                        "camera.psi_values",
-                        format!("has {} values but window is {}", v.len(), b.window),
-                    );
+                    c.fail("camera.psi_values", format!("has {} values but window is {}", v.len(), b.window));
                 }
             }
         }
@@ -517,20 +518,12 @@ fn check_sink(name: &str, s: &SinkConfig) -> Vec<ConfigError> {
     let mut c = Checker::new(&prefix);
     match s {
         SinkConfig::Shards(sh) => {
-            c.range_usize(
-                "max_samples_per_shard",
-                sh.max_samples_per_shard,
-                1,
-                10_000_000,
-            );
+            c.range_usize("max_samples_per_shard", sh.max_samples_per_shard, 1, 10_000_000);
             if sh.prefix.is_empty() || sh.prefix.contains(['/', '.']) {
-                c.fail(
-                    "prefix",
-                    format!("{:?} must be non-empty, without '/' or '.'", sh.prefix),
-                );
+                c.fail("prefix", format!("{:?} must be non-empty, without '/' or '.'", sh.prefix));
             }
         }
-        SinkConfig::Frames(_) => {}
+        SinkConfig::Frames(_) | SinkConfig::Blackhole(_) => {}
     }
     c.errors
 }
@@ -541,34 +534,19 @@ fn check_sink(name: &str, s: &SinkConfig) -> Vec<ConfigError> {
 /// Deserialisation errors (unknown keys, wrong types) come one at a time from serde; graph and
 /// value errors all at once.
 pub fn plan(table: toml::Table, origin: &str) -> Result<Plan, crate::Error> {
-    let raw: RawPipeline =
-        toml::Value::Table(table.clone())
-            .try_into()
-            .map_err(|e: toml::de::Error| {
-                crate::Error::ConfigText(format!("{origin}: {}", e.to_string().trim()))
-            })?;
+    let raw: RawPipeline = toml::Value::Table(table.clone())
+        .try_into()
+        .map_err(|e: toml::de::Error| crate::Error::ConfigText(format!("{origin}: {}", e.to_string().trim())))?;
     let mut errs: Vec<ConfigError> = Vec::new();
     let err = |key: String, message: String| ConfigError { key, message };
     if raw.sources.len() != 1 {
-        errs.push(err(
-            "sources".into(),
-            format!("needs exactly one source (found {})", raw.sources.len()),
-        ));
+        errs.push(err("sources".into(), format!("needs exactly one source (found {})", raw.sources.len())));
     }
     if raw.sinks.len() != 1 {
-        errs.push(err(
-            "sinks".into(),
-            format!("needs exactly one sink (found {})", raw.sinks.len()),
-        ));
+        errs.push(err("sinks".into(), format!("needs exactly one sink (found {})", raw.sinks.len())));
     }
     if !(1..=1024).contains(&raw.run.channel_capacity) {
-        errs.push(err(
-            "run.channel_capacity".into(),
-            format!(
-                "{} is out of range (expected 1 to 1024)",
-                raw.run.channel_capacity
-            ),
-        ));
+        errs.push(err("run.channel_capacity".into(), format!("{} is out of range (expected 1 to 1024)", raw.run.channel_capacity)));
     }
     for (n, s) in &raw.sources {
         errs.extend(check_source(n, s));
@@ -580,56 +558,29 @@ pub fn plan(table: toml::Table, origin: &str) -> Result<Plan, crate::Error> {
         errs.extend(check_sink(n, s));
     }
     // Wiring: every input names a stage; each stage feeds at most one other (a chain).
-    let names: Vec<&String> = raw
-        .sources
-        .keys()
-        .chain(raw.transforms.keys())
-        .chain(raw.sinks.keys())
-        .collect();
+    let names: Vec<&String> = raw.sources.keys().chain(raw.transforms.keys()).chain(raw.sinks.keys()).collect();
     let mut consumer: BTreeMap<String, String> = BTreeMap::new();
     let edges: Vec<(String, &[String])> = raw
         .transforms
         .iter()
         .map(|(n, t)| (format!("transforms.{n}"), inputs_of(t)))
-        .chain(
-            raw.sinks
-                .iter()
-                .map(|(n, s)| (format!("sinks.{n}"), sink_inputs(s))),
-        )
+        .chain(raw.sinks.iter().map(|(n, s)| (format!("sinks.{n}"), sink_inputs(s))))
         .collect();
     for (key, inputs) in &edges {
         let short = key.split_once('.').map_or(key.as_str(), |(_, n)| n);
         if inputs.len() != 1 {
-            errs.push(err(
-                format!("{key}.inputs"),
-                format!(
-                    "needs exactly one input (found {}); stages form a chain",
-                    inputs.len()
-                ),
-            ));
+            errs.push(err(format!("{key}.inputs"), format!("needs exactly one input (found {}); stages form a chain", inputs.len())));
             continue;
         }
         let input = &inputs[0];
         if !names.iter().any(|n| *n == input) || raw.sinks.contains_key(input) {
-            let best = names
-                .iter()
-                .filter(|n| !raw.sinks.contains_key(n.as_str()))
-                .min_by_key(|n| edit_distance(n, input));
-            let hint = best
-                .filter(|b| edit_distance(b, input) <= 2)
-                .map(|b| format!(" (did you mean {b:?}?)"))
-                .unwrap_or_default();
-            errs.push(err(
-                format!("{key}.inputs"),
-                format!("input {input:?} doesn't match any source or transform{hint}"),
-            ));
+            let best = names.iter().filter(|n| !raw.sinks.contains_key(n.as_str())).min_by_key(|n| edit_distance(n, input));
+            let hint = best.filter(|b| edit_distance(b, input) <= 2).map(|b| format!(" (did you mean {b:?}?)")).unwrap_or_default();
+            errs.push(err(format!("{key}.inputs"), format!("input {input:?} doesn't match any source or transform{hint}")));
             continue;
         }
         if let Some(prev) = consumer.insert(input.clone(), short.to_string()) {
-            errs.push(err(
-                format!("{key}.inputs"),
-                format!("{input:?} already feeds {prev:?}; fan-out is not supported"),
-            ));
+            errs.push(err(format!("{key}.inputs"), format!("{input:?} already feeds {prev:?}; fan-out is not supported")));
         }
     }
     // Follow the chain from the source.
@@ -641,10 +592,7 @@ pub fn plan(table: toml::Table, origin: &str) -> Result<Plan, crate::Error> {
         let mut seen = std::collections::BTreeSet::new();
         while let Some(next) = consumer.get(&cur) {
             if !seen.insert(next.clone()) {
-                errs.push(err(
-                    "transforms".into(),
-                    format!("cycle detected through {next:?}"),
-                ));
+                errs.push(err("transforms".into(), format!("cycle detected through {next:?}")));
                 break;
             }
             if let Some(t) = raw.transforms.get(next) {
@@ -658,40 +606,22 @@ pub fn plan(table: toml::Table, origin: &str) -> Result<Plan, crate::Error> {
         let reached: Vec<&String> = stages.iter().map(|(n, _)| n).collect();
         for n in raw.transforms.keys().chain(raw.sinks.keys()) {
             if !reached.contains(&n) && errs.is_empty() {
-                errs.push(err(
-                    format!("{n}"),
-                    "is not connected to the source (a cycle or a dangling stage)".into(),
-                ));
+                errs.push(err(format!("{n}"), "is not connected to the source (a cycle or a dangling stage)".into()));
             }
         }
         // Types along the chain.
         let mut kind = Kind::EncodedFrames;
         for (name, st) in stages.iter().skip(1) {
             let (want, out): (&[Kind], Kind) = match st {
-                StagePlan::Transform(TransformConfig::Linearize(_)) => {
-                    (&[Kind::EncodedFrames], Kind::LinearFrames)
-                }
-                StagePlan::Transform(TransformConfig::CodedBlur(_)) => {
-                    (&[Kind::LinearFrames], Kind::Samples)
-                }
-                StagePlan::Transform(TransformConfig::Noise(_)) => {
-                    (&[Kind::Samples], Kind::Samples)
-                }
-                StagePlan::Transform(TransformConfig::Patches(_)) => {
-                    (&[Kind::Samples], Kind::Samples)
-                }
+                StagePlan::Transform(TransformConfig::Linearize(_)) => (&[Kind::EncodedFrames], Kind::LinearFrames),
+                StagePlan::Transform(TransformConfig::CodedBlur(_)) => (&[Kind::LinearFrames], Kind::Samples),
+                StagePlan::Transform(TransformConfig::Noise(_)) => (&[Kind::Samples], Kind::Samples),
+                StagePlan::Transform(TransformConfig::Patches(_)) => (&[Kind::Samples], Kind::Samples),
                 StagePlan::Sink(_) => (&[Kind::Samples], Kind::Samples),
                 StagePlan::Source(_) => unreachable!("one source"),
             };
             if !want.contains(&kind) {
-                errs.push(err(
-                    name.clone(),
-                    format!(
-                        "data type mismatch: gets {} (expects {})",
-                        kind.name(),
-                        want[0].name()
-                    ),
-                ));
+                errs.push(err(name.clone(), format!("data type mismatch: gets {} (expects {})", kind.name(), want[0].name())));
                 break;
             }
             kind = out;
@@ -700,12 +630,7 @@ pub fn plan(table: toml::Table, origin: &str) -> Result<Plan, crate::Error> {
     if !errs.is_empty() {
         return Err(crate::Error::Config(errs));
     }
-    Ok(Plan {
-        seed: raw.seed,
-        run: raw.run,
-        stages,
-        resolved: table,
-    })
+    Ok(Plan { seed: raw.seed, run: raw.run, stages, resolved: table })
 }
 
 /// Expands the source's paths: files as given, folders to their files with the wanted
@@ -717,19 +642,10 @@ pub fn expand_paths(paths: &[String], exts: &[&str]) -> Result<Vec<PathBuf>, cra
     let mut out = Vec::new();
     for p in paths {
         let path = PathBuf::from(p);
-        let name = path
-            .file_name()
-            .map(|n| n.to_string_lossy().into_owned())
-            .unwrap_or_default();
+        let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         if name.contains(['*', '?']) {
-            let dir = path
-                .parent()
-                .filter(|d| !d.as_os_str().is_empty())
-                .unwrap_or(Path::new("."));
-            let rd = std::fs::read_dir(dir).map_err(|e| crate::Error::Io {
-                path: dir.to_path_buf(),
-                source: e,
-            })?;
+            let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+            let rd = std::fs::read_dir(dir).map_err(|e| crate::Error::Io { path: dir.to_path_buf(), source: e })?;
             let before = out.len();
             for e in rd.flatten() {
                 let n = e.file_name().to_string_lossy().into_owned();
@@ -738,21 +654,12 @@ pub fn expand_paths(paths: &[String], exts: &[&str]) -> Result<Vec<PathBuf>, cra
                 }
             }
             if out.len() == before {
-                return Err(crate::Error::Invalid(format!(
-                    "{p}: the pattern matches no file"
-                )));
+                return Err(crate::Error::Invalid(format!("{p}: the pattern matches no file")));
             }
         } else if path.is_dir() {
-            let rd = std::fs::read_dir(&path).map_err(|e| crate::Error::Io {
-                path: path.clone(),
-                source: e,
-            })?;
+            let rd = std::fs::read_dir(&path).map_err(|e| crate::Error::Io { path: path.clone(), source: e })?;
             for e in rd.flatten() {
-                let ext = e
-                    .path()
-                    .extension()
-                    .map(|x| x.to_string_lossy().to_ascii_lowercase())
-                    .unwrap_or_default();
+                let ext = e.path().extension().map(|x| x.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
                 if exts.contains(&ext.as_str()) {
                     out.push(e.path());
                 }
@@ -814,65 +721,36 @@ inputs = ["blur"]
 
     #[test]
     fn a_typo_is_rejected_naming_the_key() {
-        let e = plan_of(
-            &GOOD.replace("inputs = [\"linear\"]", "inputs = [\"linear\"]\nwindw = 9"),
-            &[],
-        )
-        .unwrap_err()
-        .to_string();
+        let e = plan_of(&GOOD.replace("inputs = [\"linear\"]", "inputs = [\"linear\"]\nwindw = 9"), &[]).unwrap_err().to_string();
         assert!(e.contains("windw") && e.contains("test.toml"), "{e}");
-        let e = plan_of(GOOD, &["transforms.blur.camera.typ=\"flutter\""])
-            .unwrap_err()
-            .to_string();
+        let e = plan_of(GOOD, &["transforms.blur.camera.typ=\"flutter\""]).unwrap_err().to_string();
         assert!(e.contains("typ"), "{e}");
     }
 
     #[test]
     fn every_value_error_comes_in_one_pass() {
-        let e = plan_of(
-            GOOD,
-            &[
-                "transforms.blur.window=99",
-                "transforms.blur.optics.pupil_samples=2",
-                "run.channel_capacity=0",
-            ],
-        )
-        .unwrap_err()
-        .to_string();
-        for key in [
-            "transforms.blur.window",
-            "transforms.blur.optics.pupil_samples",
-            "run.channel_capacity",
-        ] {
+        let e = plan_of(GOOD, &["transforms.blur.window=99", "transforms.blur.optics.pupil_samples=2", "run.channel_capacity=0"])
+            .unwrap_err()
+            .to_string();
+        for key in ["transforms.blur.window", "transforms.blur.optics.pupil_samples", "run.channel_capacity"] {
             assert!(e.contains(key), "{key} missing from: {e}");
         }
     }
 
     #[test]
     fn wiring_errors_say_what_is_wrong() {
-        let e = plan_of(
-            &GOOD.replace("inputs = [\"linear\"]", "inputs = [\"linaer\"]"),
-            &[],
-        )
-        .unwrap_err()
-        .to_string();
+        let e = plan_of(&GOOD.replace("inputs = [\"linear\"]", "inputs = [\"linaer\"]"), &[]).unwrap_err().to_string();
         assert!(e.contains("did you mean \"linear\""), "{e}");
         // linear <-> blur form a loop cut off from the source.
         let cyc = GOOD
             .replace("inputs = [\"video\"]", "inputs = [\"blur\"]")
-            .replace(
-                "type = \"shards\"\ninputs = [\"blur\"]",
-                "type = \"shards\"\ninputs = [\"video\"]",
-            );
+            .replace("type = \"shards\"\ninputs = [\"blur\"]", "type = \"shards\"\ninputs = [\"video\"]");
         let e = plan_of(&cyc, &[]).unwrap_err().to_string();
         assert!(e.contains("not connected"), "{e}");
         let e = plan_of(
             &GOOD
                 .replace("inputs = [\"blur\"]", "inputs = [\"linear\"]")
-                .replace(
-                    "inputs = [\"linear\"]\n[sinks",
-                    "inputs = [\"video\"]\n[sinks",
-                ),
+                .replace("inputs = [\"linear\"]\n[sinks", "inputs = [\"video\"]\n[sinks"),
             &[],
         );
         assert!(e.is_err());
@@ -880,10 +758,7 @@ inputs = ["blur"]
         let e = plan_of(
             &GOOD
                 .replace("inputs = [\"linear\"]", "inputs = [\"video\"]")
-                .replace(
-                    "[transforms.linear]\ntype = \"linearize\"\ninputs = [\"video\"]\n",
-                    "",
-                ),
+                .replace("[transforms.linear]\ntype = \"linearize\"\ninputs = [\"video\"]\n", ""),
             &[],
         )
         .unwrap_err()
@@ -893,27 +768,13 @@ inputs = ["blur"]
 
     #[test]
     fn sets_parse_values_as_toml() {
-        let p = plan_of(
-            GOOD,
-            &[
-                "transforms.blur.window=11",
-                "transforms.blur.camera.type=conventional",
-            ],
-        )
-        .unwrap();
+        let p = plan_of(GOOD, &["transforms.blur.window=11", "transforms.blur.camera.type=conventional"]).unwrap();
         assert_eq!(p.blur().unwrap().window, 11);
-        assert_eq!(
-            p.blur().unwrap().camera.kind,
-            crate::optics::CameraKind::Conventional
-        );
+        assert_eq!(p.blur().unwrap().camera.kind, crate::optics::CameraKind::Conventional);
     }
 
     #[test]
     fn globs_match_file_names() {
-        assert!(
-            glob_match("*.mp4", "a.mp4")
-                && !glob_match("*.mp4", "a.mkv")
-                && glob_match("c?ip*", "clip_01.mov")
-        );
+        assert!(glob_match("*.mp4", "a.mp4") && !glob_match("*.mp4", "a.mkv") && glob_match("c?ip*", "clip_01.mov"));
     }
 }

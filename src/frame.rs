@@ -4,19 +4,91 @@ use crate::optics::transfer::Curve;
 use crate::optics::CameraKind;
 use std::sync::Arc;
 
-/// One frame. Encoded frames come from sources; `linearize` turns them into linear light.
+/// One frame. Sources make encoded frames (`curve: None`); `linearize` tags them with the
+/// curve that maps them to linear light (`curve: Some`), without touching the pixels: readers
+/// convert only the rows they use, through a table ([`Frame::linear_row`]).
 #[derive(Debug, Clone)]
 pub struct Frame {
     pub width: usize,
     pub height: usize,
-    pub data: FrameData,
+    pub data: Arc<FrameData>,
+    pub curve: Option<Curve>,
+}
+
+/// Columns to read from a row: a contiguous run from `start`, or explicit (mirrored) indices.
+#[derive(Debug, Clone, Copy)]
+pub enum Cols<'a> {
+    From(usize),
+    Index(&'a [usize]),
+}
+
+fn lut8(curve: Curve) -> &'static [f32] {
+    static T: [std::sync::OnceLock<Vec<f32>>; 3] = [const { std::sync::OnceLock::new() }; 3];
+    T[curve as usize].get_or_init(|| (0..256).map(|v| curve.to_linear(v as f64 / 255.0) as f32).collect())
+}
+
+fn lut16(curve: Curve) -> &'static [f32] {
+    static T: [std::sync::OnceLock<Vec<f32>>; 3] = [const { std::sync::OnceLock::new() }; 3];
+    T[curve as usize].get_or_init(|| curve.decode_lut16())
+}
+
+impl Frame {
+    pub fn new(width: usize, height: usize, data: FrameData) -> Frame {
+        Frame { width, height, data: Arc::new(data), curve: None }
+    }
+
+    /// Linear light of channel `c`, row `y`, at `cols`, into `out` (its length is the count).
+    ///
+    /// # Panics
+    /// If the frame has not been through `linearize`.
+    pub fn linear_row(&self, c: usize, y: usize, cols: Cols, out: &mut [f32]) {
+        let curve = self.curve.expect("frame reached a linear stage without linearize");
+        let base = y * self.width;
+        macro_rules! fill {
+            ($plane:expr, $map:expr) => {{
+                let row = &$plane[base..base + self.width];
+                match cols {
+                    Cols::From(x0) => {
+                        let n = out.len();
+                        out.iter_mut().zip(&row[x0..x0 + n]).for_each(|(o, v)| *o = $map(*v))
+                    }
+                    Cols::Index(ix) => out.iter_mut().zip(ix).for_each(|(o, &i)| *o = $map(row[i])),
+                }
+            }};
+        }
+        match &*self.data {
+            FrameData::Planar8(p) => {
+                let t = lut8(curve);
+                fill!(p[c], |v: u8| t[v as usize])
+            }
+            FrameData::Planar16(p) => {
+                let t = lut16(curve);
+                fill!(p[c], |v: u16| t[v as usize])
+            }
+            FrameData::Planar(p) if curve == Curve::Identity => fill!(p[c], |v: f32| v),
+            FrameData::Planar(p) => fill!(p[c], |v: f32| curve.to_linear(v as f64) as f32),
+        }
+    }
+
+    /// Linear planes of the `rw x rh` region at (x, y) (inside the frame).
+    pub fn linear_crop(&self, x: usize, y: usize, rw: usize, rh: usize) -> [Vec<f32>; 3] {
+        std::array::from_fn(|c| {
+            let mut out = vec![0.0f32; rw * rh];
+            for (r, o) in out.chunks_exact_mut(rw.max(1)).enumerate() {
+                self.linear_row(c, y + r, Cols::From(x), o);
+            }
+            out
+        })
+    }
 }
 
 #[derive(Debug, Clone)]
 pub enum FrameData {
-    /// Encoded values, 16-bit, interleaved RGB (what the decoder's scaler writes).
-    Rgb48(Vec<u16>),
-    /// Planar RGB f32: encoded values in [0, 1] from a source, or linear light after `linearize`.
+    /// Encoded 8-bit planes R, G, B (8-bit sources).
+    Planar8([Vec<u8>; 3]),
+    /// Encoded 16-bit planes R, G, B (sources of more than 8 bits, scaled to the full range).
+    Planar16([Vec<u16>; 3]),
+    /// Planar RGB f32, values in [0, 1] (the `stills` source, and tests).
     Planar([Vec<f32>; 3]),
 }
 

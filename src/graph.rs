@@ -10,7 +10,7 @@ use crate::optics::Camera;
 use crate::stage::blur::{Blurrer, CodedBlur};
 use crate::stage::noise::Noise;
 use crate::stage::patches::{Patches, Selector};
-use crate::stage::shards::{completed, Frames, Manifest, Shards};
+use crate::stage::shards::{completed, Blackhole, Frames, Manifest, Shards};
 use crate::stage::source::{input_key, Needs, Stills};
 use crate::stage::{Counters, Emit, Linearize, Sink, Source, StageError, Transform};
 use crate::{Error, Result};
@@ -58,12 +58,7 @@ pub struct RunOptions {
 
 impl Default for RunOptions {
     fn default() -> Self {
-        RunOptions {
-            task_index: 0,
-            task_count: 1,
-            progress: ProgressMode::Never,
-            command: String::new(),
-        }
+        RunOptions { task_index: 0, task_count: 1, progress: ProgressMode::Never, command: String::new() }
     }
 }
 
@@ -109,9 +104,7 @@ pub struct Report {
     pub config: serde_json::Value,
 }
 
-const VIDEO_EXTS: &[&str] = &[
-    "mp4", "mkv", "mov", "avi", "webm", "m4v", "mts", "ts", "y4m", "nut",
-];
+const VIDEO_EXTS: &[&str] = &["mp4", "mkv", "mov", "avi", "webm", "m4v", "mts", "ts", "y4m", "nut"];
 
 /// The inputs of the plan's source, sorted, each with its global index.
 ///
@@ -119,31 +112,16 @@ const VIDEO_EXTS: &[&str] = &[
 /// A path that does not exist as a folder or pattern.
 pub fn list_inputs(plan: &Plan) -> Result<Vec<(Arc<Input>, Option<PathBuf>)>> {
     let paths: Vec<Option<PathBuf>> = match plan.source() {
-        SourceConfig::Decode(d) => crate::config::expand_paths(&d.paths, VIDEO_EXTS)?
-            .into_iter()
-            .map(Some)
-            .collect(),
+        SourceConfig::Decode(d) => crate::config::expand_paths(&d.paths, VIDEO_EXTS)?.into_iter().map(Some).collect(),
         SourceConfig::Stills(s) if s.paths.is_empty() => (0..s.clips).map(|_| None).collect(),
-        SourceConfig::Stills(s) => crate::config::expand_paths(&s.paths, &["png"])?
-            .into_iter()
-            .map(Some)
-            .collect(),
+        SourceConfig::Stills(s) => crate::config::expand_paths(&s.paths, &["png"])?.into_iter().map(Some).collect(),
     };
     Ok(paths
         .into_iter()
         .enumerate()
         .map(|(i, p)| {
-            let path = p
-                .as_ref()
-                .map_or_else(|| format!("procedural-{i:05}"), |p| p.display().to_string());
-            (
-                Arc::new(Input {
-                    index: i,
-                    key: input_key(i, &path),
-                    path,
-                }),
-                p,
-            )
+            let path = p.as_ref().map_or_else(|| format!("procedural-{i:05}"), |p| p.display().to_string());
+            (Arc::new(Input { index: i, key: input_key(i, &path), path }), p)
         })
         .collect())
 }
@@ -157,11 +135,7 @@ struct Timing {
 
 impl Timing {
     fn new() -> Timing {
-        Timing {
-            start: Instant::now(),
-            waiting: Duration::ZERO,
-            items: 0,
-        }
+        Timing { start: Instant::now(), waiting: Duration::ZERO, items: 0 }
     }
     fn busy(&self) -> f64 {
         (self.start.elapsed().saturating_sub(self.waiting)).as_secs_f64()
@@ -224,15 +198,9 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
     INTERRUPTED.store(false, Ordering::SeqCst);
     let t0 = Instant::now();
     let out_dir = plan.out_dir();
-    std::fs::create_dir_all(&out_dir).map_err(|e| Error::Io {
-        path: out_dir.clone(),
-        source: e,
-    })?;
+    std::fs::create_dir_all(&out_dir).map_err(|e| Error::Io { path: out_dir.clone(), source: e })?;
     let probe = out_dir.join(format!(".write-test.{}", std::process::id()));
-    std::fs::write(&probe, b"").map_err(|e| Error::Io {
-        path: out_dir.clone(),
-        source: e,
-    })?;
+    std::fs::write(&probe, b"").map_err(|e| Error::Io { path: out_dir.clone(), source: e })?;
     let _ = std::fs::remove_file(&probe);
 
     // Inputs: sorted, this task's share, minus what the manifest already lists.
@@ -241,7 +209,7 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
     let manifest_name = Manifest::file_name(opts.task_index, opts.task_count);
     let manifest = match plan.sink() {
         SinkConfig::Shards(_) => Manifest::load(&out_dir, &manifest_name)?,
-        SinkConfig::Frames(_) => None,
+        SinkConfig::Frames(_) | SinkConfig::Blackhole(_) => None,
     };
     let done = completed(&manifest);
     let mut skipped = Vec::new();
@@ -269,16 +237,10 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
     // Crop first when everything between the blur and the patches is per-pixel (noise).
     let crop_first = patches.as_ref().filter(|p| p.crop_first).filter(|_| {
         let kinds: Vec<&StagePlan> = plan.stages.iter().map(|(_, s)| s).collect();
-        let b = kinds
-            .iter()
-            .position(|s| matches!(s, StagePlan::Transform(TransformConfig::CodedBlur(_))));
-        let p = kinds
-            .iter()
-            .position(|s| matches!(s, StagePlan::Transform(TransformConfig::Patches(_))));
+        let b = kinds.iter().position(|s| matches!(s, StagePlan::Transform(TransformConfig::CodedBlur(_))));
+        let p = kinds.iter().position(|s| matches!(s, StagePlan::Transform(TransformConfig::Patches(_))));
         match (b, p) {
-            (Some(b), Some(p)) if b < p => kinds[b + 1..p]
-                .iter()
-                .all(|s| matches!(s, StagePlan::Transform(TransformConfig::Noise(_)))),
+            (Some(b), Some(p)) if b < p => kinds[b + 1..p].iter().all(|s| matches!(s, StagePlan::Transform(TransformConfig::Noise(_)))),
             _ => false,
         }
     });
@@ -301,10 +263,7 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
                 #[cfg(feature = "ffmpeg")]
                 {
                     source = Some(Box::new(crate::stage::source::Decode {
-                        inputs: selected
-                            .iter()
-                            .map(|(i, p)| (i.clone(), p.clone().expect("decode inputs are files")))
-                            .collect(),
+                        inputs: selected.iter().map(|(i, p)| (i.clone(), p.clone().expect("decode inputs are files"))).collect(),
                         max_frames: d.max_frames,
                         needs,
                         counters: counters.clone(),
@@ -313,55 +272,32 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
                 #[cfg(not(feature = "ffmpeg"))]
                 {
                     let _ = d;
-                    return Err(Error::Invalid(format!(
-                        "sources.{name}: built without the ffmpeg feature"
-                    )));
+                    return Err(Error::Invalid(format!("sources.{name}: built without the ffmpeg feature")));
                 }
             }
             StagePlan::Source(SourceConfig::Stills(s)) => {
-                source = Some(Box::new(Stills {
-                    cfg: s.clone(),
-                    seed: plan.seed,
-                    inputs: selected.clone(),
-                    needs,
-                    counters: counters.clone(),
-                }));
+                source =
+                    Some(Box::new(Stills { cfg: s.clone(), seed: plan.seed, inputs: selected.clone(), needs, counters: counters.clone() }));
             }
-            StagePlan::Transform(TransformConfig::Linearize(l)) => transforms.push((
-                name.clone(),
-                "linearize".into(),
-                Box::new(Linearize::new(l.curve)),
-            )),
+            StagePlan::Transform(TransformConfig::Linearize(l)) => {
+                transforms.push((name.clone(), "linearize".into(), Box::new(Linearize::new(l.curve))))
+            }
             StagePlan::Transform(TransformConfig::CodedBlur(b)) => {
                 let cam = Arc::new(Camera::new(&b.optics, &b.camera));
-                let blurrer = Blurrer::new(cam, b.window, b.threads)?;
+                let blurrer = Blurrer::new(cam, b.window, b.threads, b.rank_tolerance)?;
                 let sel = crop_first.map(Selector::new);
                 transforms.push((
                     name.clone(),
                     "coded_blur".into(),
-                    Box::new(CodedBlur::new(
-                        blurrer,
-                        b.stride.unwrap_or(b.window),
-                        curve,
-                        plan.seed,
-                        sel,
-                        counters.clone(),
-                    )),
+                    Box::new(CodedBlur::new(blurrer, b.stride.unwrap_or(b.window), curve, plan.seed, sel, counters.clone())),
                 ));
             }
-            StagePlan::Transform(TransformConfig::Noise(n)) => transforms.push((
-                name.clone(),
-                "noise".into(),
-                Box::new(Noise::new(n.sigma, plan.seed)),
-            )),
-            StagePlan::Transform(TransformConfig::Patches(p)) => transforms.push((
-                name.clone(),
-                "patches".into(),
-                Box::new(Patches {
-                    selector: Selector::new(p),
-                    seed: plan.seed,
-                }),
-            )),
+            StagePlan::Transform(TransformConfig::Noise(n)) => {
+                transforms.push((name.clone(), "noise".into(), Box::new(Noise::new(n.sigma, plan.seed))))
+            }
+            StagePlan::Transform(TransformConfig::Patches(p)) => {
+                transforms.push((name.clone(), "patches".into(), Box::new(Patches { selector: Selector::new(p), seed: plan.seed })))
+            }
             StagePlan::Sink(SinkConfig::Shards(s)) => {
                 let m = manifest.clone().unwrap_or(Manifest {
                     format: "webdataset".into(),
@@ -383,10 +319,10 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
                 ));
             }
             StagePlan::Sink(SinkConfig::Frames(f)) => {
-                sink = Some((
-                    name.clone(),
-                    Box::new(Frames::new(out_dir.clone(), f.format, counters.clone())),
-                ))
+                sink = Some((name.clone(), Box::new(Frames::new(out_dir.clone(), f.format, counters.clone()))))
+            }
+            StagePlan::Sink(SinkConfig::Blackhole(_)) => {
+                sink = Some((name.clone(), Box::new(Blackhole { counters: counters.clone(), samples: 0, failed: Vec::new() })))
             }
         }
     }
@@ -413,12 +349,7 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
                 if let Err(e) = source.run(&mut out) {
                     record(&first, &stop, &name, e);
                 }
-                StageReport {
-                    name,
-                    kind: "source".into(),
-                    busy_s: t.busy() - out.waited.as_secs_f64(),
-                    items_in: 0,
-                }
+                StageReport { name, kind: "source".into(), busy_s: t.busy() - out.waited.as_secs_f64(), items_in: 0 }
             }));
         }
         for (name, kind, mut tr) in transforms.into_iter() {
@@ -453,21 +384,11 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
                         record(&first, &stop, &name, e);
                     }
                 }
-                StageReport {
-                    name,
-                    kind,
-                    busy_s: t.busy() - out.waited.as_secs_f64(),
-                    items_in: t.items,
-                }
+                StageReport { name, kind, busy_s: t.busy() - out.waited.as_secs_f64(), items_in: t.items }
             }));
         }
         let sink_handle = {
-            let (stop, first, name, summary) = (
-                stop.clone(),
-                first.clone(),
-                sink_name.clone(),
-                &sink_summary,
-            );
+            let (stop, first, name, summary) = (stop.clone(), first.clone(), sink_name.clone(), &sink_summary);
             let sink = &mut sink;
             s.spawn(move || {
                 let mut t = Timing::new();
@@ -488,12 +409,7 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
                         }
                     }
                 }
-                StageReport {
-                    name,
-                    kind: "sink".into(),
-                    busy_s: t.busy(),
-                    items_in: t.items,
-                }
+                StageReport { name, kind: "sink".into(), busy_s: t.busy(), items_in: t.items }
             })
         };
         while !sink_handle.is_finished() {
@@ -512,17 +428,10 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
     }
     let interrupted = INTERRUPTED.load(Ordering::SeqCst);
     if interrupted {
-        return Err(Error::Invalid(
-            "interrupted: unfinished outputs were removed; finished inputs are in the manifest"
-                .into(),
-        ));
+        return Err(Error::Invalid("interrupted: unfinished outputs were removed; finished inputs are in the manifest".into()));
     }
     let secs = t0.elapsed().as_secs_f64();
-    let (frames, windows, samples) = (
-        Counters::get(&counters.frames),
-        Counters::get(&counters.windows),
-        Counters::get(&counters.samples),
-    );
+    let (frames, windows, samples) = (Counters::get(&counters.frames), Counters::get(&counters.windows), Counters::get(&counters.samples));
     let subframes = windows * plan.blur().map_or(0, |b| b.window as u64);
     let report = Report {
         version: env!("CARGO_PKG_VERSION"),
@@ -534,10 +443,7 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
         inputs_selected: n_selected,
         inputs_skipped: skipped,
         inputs_done: Counters::get(&counters.inputs_done),
-        inputs_failed: failures
-            .into_iter()
-            .map(|(path, error)| FailedInput { path, error })
-            .collect(),
+        inputs_failed: failures.into_iter().map(|(path, error)| FailedInput { path, error }).collect(),
         frames,
         windows,
         subframes,
@@ -547,10 +453,7 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
         subframes_per_s: subframes as f64 / secs,
         samples_per_s: samples as f64 / secs,
         stages: reports,
-        sink: sink_summary
-            .into_inner()
-            .expect("summary")
-            .unwrap_or(serde_json::Value::Null),
+        sink: sink_summary.into_inner().expect("summary").unwrap_or(serde_json::Value::Null),
         interrupted,
         config: serde_json::to_value(&plan.resolved).unwrap_or(serde_json::Value::Null),
     };
@@ -559,14 +462,8 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
 }
 
 fn write_report(dir: &Path, opts: &RunOptions, r: &Report) -> Result<()> {
-    let name = if opts.task_count > 1 {
-        format!(
-            "report-{:05}-of-{:05}.json",
-            opts.task_index, opts.task_count
-        )
-    } else {
-        "report.json".into()
-    };
+    let name =
+        if opts.task_count > 1 { format!("report-{:05}-of-{:05}.json", opts.task_index, opts.task_count) } else { "report.json".into() };
     let bytes = serde_json::to_vec_pretty(r).expect("json");
     crate::io::write_atomic(&dir.join(name), |w| w.write_all(&bytes))
 }
@@ -585,9 +482,7 @@ impl Progress {
         let tty = std::io::stderr().is_terminal();
         let bars = (mode == ProgressMode::Auto && tty).then(|| {
             let mp = indicatif::MultiProgress::new();
-            let style =
-                indicatif::ProgressStyle::with_template("{prefix:>8} {spinner} {pos:>8} {msg}")
-                    .expect("template");
+            let style = indicatif::ProgressStyle::with_template("{prefix:>8} {spinner} {pos:>8} {msg}").expect("template");
             let mk = |p: &str| {
                 let b = mp.add(indicatif::ProgressBar::new_spinner());
                 b.set_style(style.clone());
@@ -598,18 +493,8 @@ impl Progress {
             bars[0].set_message(format!("of {inputs} inputs"));
             (mp, bars)
         });
-        let mode = if mode == ProgressMode::Auto && !tty {
-            ProgressMode::Lines
-        } else {
-            mode
-        };
-        Progress {
-            mode,
-            counters,
-            start: Instant::now(),
-            last: Mutex::new(Instant::now()),
-            bars,
-        }
+        let mode = if mode == ProgressMode::Auto && !tty { ProgressMode::Lines } else { mode };
+        Progress { mode, counters, start: Instant::now(), last: Mutex::new(Instant::now()), bars }
     }
 
     fn line(&self) -> String {
@@ -642,10 +527,7 @@ impl Progress {
                 ));
                 b[1].set_position(Counters::get(&c.windows));
                 b[2].set_position(Counters::get(&c.samples));
-                b[2].set_message(format!(
-                    "{:.1} samples/s",
-                    Counters::get(&c.samples) as f64 / secs
-                ));
+                b[2].set_message(format!("{:.1} samples/s", Counters::get(&c.samples) as f64 / secs));
             }
             (None, ProgressMode::Lines) => {
                 let mut last = self.last.lock().expect("progress");

@@ -10,32 +10,21 @@ use std::sync::Arc;
 
 /// Parses `start:stop:count` (inclusive, evenly spaced) or a comma list of psi values.
 pub fn parse_psi_list(s: &str) -> std::result::Result<Vec<f64>, String> {
-    let num = |t: &str| {
-        t.trim()
-            .parse::<f64>()
-            .map_err(|_| format!("{t:?} is not a number"))
-    };
+    let num = |t: &str| t.trim().parse::<f64>().map_err(|_| format!("{t:?} is not a number"));
     let v = if s.contains(':') {
         let parts: Vec<&str> = s.split(':').collect();
         if parts.len() != 3 {
             return Err("expected start:stop:count, e.g. 0:8:33".into());
         }
         let (a, b) = (num(parts[0])?, num(parts[1])?);
-        let n: usize = parts[2]
-            .trim()
-            .parse()
-            .map_err(|_| format!("count {:?} is not a whole number", parts[2]))?;
+        let n: usize = parts[2].trim().parse().map_err(|_| format!("count {:?} is not a whole number", parts[2]))?;
         match n {
             0 => return Err("count must be at least 1".into()),
             1 => vec![a],
-            _ => (0..n)
-                .map(|i| a + (b - a) * i as f64 / (n - 1) as f64)
-                .collect(),
+            _ => (0..n).map(|i| a + (b - a) * i as f64 / (n - 1) as f64).collect(),
         }
     } else {
-        s.split(',')
-            .map(num)
-            .collect::<std::result::Result<Vec<_>, _>>()?
+        s.split(',').map(num).collect::<std::result::Result<Vec<_>, _>>()?
     };
     if let Some(bad) = v.iter().find(|p| !(p.abs() <= 50.0)) {
         return Err(format!("psi {bad} is out of range (expected -50 to 50)"));
@@ -64,11 +53,7 @@ pub enum PsfRequest {
 ///
 /// # Errors
 /// A window whose `psi_values` do not match its length.
-pub fn compute(
-    optics: &OpticsConfig,
-    camera: &CameraConfig,
-    req: &PsfRequest,
-) -> Result<Vec<PsfRow>> {
+pub fn compute(optics: &OpticsConfig, camera: &CameraConfig, req: &PsfRequest) -> Result<Vec<PsfRow>> {
     match req {
         PsfRequest::Psi(psis) => {
             let lens = Lens::new(optics, camera.kind == CameraKind::PhaseCoded);
@@ -80,26 +65,13 @@ pub fn compute(
                         s.spawn(move || lens.psf(p, lens.support_half(p.abs())))
                     })
                     .collect();
-                handles
-                    .into_iter()
-                    .map(|h| h.join().expect("psf worker"))
-                    .collect()
+                handles.into_iter().map(|h| h.join().expect("psf worker")).collect()
             });
-            let half = full
-                .iter()
-                .map(|p| p.needed_half(optics.trim_energy))
-                .max()
-                .unwrap_or(0);
+            let half = full.iter().map(|p| p.needed_half(optics.trim_energy)).max().unwrap_or(0);
             Ok(psis
                 .iter()
                 .zip(full)
-                .map(|(&psi, p)| PsfRow {
-                    label: format!("{psi:.3}"),
-                    psi,
-                    weight: 1.0,
-                    shift: [0.0; 2],
-                    psf: p.resized(half),
-                })
+                .map(|(&psi, p)| PsfRow { label: format!("{psi:.3}"), psi, weight: 1.0, shift: [0.0; 2], psf: p.resized(half) })
                 .collect())
         }
         PsfRequest::Window(n) => {
@@ -110,21 +82,14 @@ pub fn compute(
                 .enumerate()
                 .map(|(i, k)| {
                     // Unit-sum spatial kernel with the shift; the weight goes in the table.
-                    let unit = crate::optics::SubframeKernel {
-                        weight: 1.0,
-                        psf: Arc::clone(&k.psf),
-                        ..k.clone()
-                    };
+                    let unit = crate::optics::SubframeKernel { weight: 1.0, psf: Arc::clone(&k.psf), ..k.clone() };
                     let channels = std::array::from_fn(|c| unit.render(c, half));
                     PsfRow {
                         label: format!("k={i}"),
                         psi: k.psi,
                         weight: k.weight,
                         shift: k.shift,
-                        psf: Psf {
-                            size: 2 * half + 1,
-                            channels,
-                        },
+                        psf: Psf { size: 2 * half + 1, channels },
                     }
                 })
                 .collect())
@@ -137,22 +102,11 @@ const NAMES: [&str; 3] = ["R", "G", "B"];
 /// The table printed by `pipeline psf`: psi, per-channel peak, 50%-energy radius, sharpest.
 pub fn table(rows: &[PsfRow], window: bool) -> String {
     let mut s = String::new();
-    let lead = if window {
-        format!("{:>5} {:>7} {:>7} {:>13}", "k", "psi", "weight", "shift px")
-    } else {
-        format!("{:>7}", "psi")
-    };
-    let _ = writeln!(
-        s,
-        "{lead}  {:>8} {:>8} {:>8}  {:>6} {:>6} {:>6}  sharpest",
-        "peak R", "peak G", "peak B", "r50 R", "r50 G", "r50 B"
-    );
+    let lead = if window { format!("{:>5} {:>7} {:>7} {:>13}", "k", "psi", "weight", "shift px") } else { format!("{:>7}", "psi") };
+    let _ = writeln!(s, "{lead}  {:>8} {:>8} {:>8}  {:>6} {:>6} {:>6}  sharpest", "peak R", "peak G", "peak B", "r50 R", "r50 G", "r50 B");
     for (i, r) in rows.iter().enumerate() {
         let lead = if window {
-            format!(
-                "{i:>5} {:>7.3} {:>7.4} {:>6.2},{:>6.2}",
-                r.psi, r.weight, r.shift[0], r.shift[1]
-            )
+            format!("{i:>5} {:>7.3} {:>7.4} {:>6.2},{:>6.2}", r.psi, r.weight, r.shift[0], r.shift[1])
         } else {
             format!("{:>7.3}", r.psi)
         };
@@ -211,17 +165,11 @@ fn mosaic(
     let t = n * zoom;
     let cols = rows.len().clamp(1, per_row);
     let lines = rows.len().div_ceil(cols).max(1);
-    let (w, h) = (
-        cols * t + (cols + 1) * gap,
-        lines * (t + label_h) + (lines + 1) * gap,
-    );
+    let (w, h) = (cols * t + (cols + 1) * gap, lines * (t + label_h) + (lines + 1) * gap);
     let mut out = [vec![bg; w * h], vec![bg; w * h], vec![bg; w * h]];
     for (i, r) in rows.iter().enumerate() {
         let tile = map(&r.psf);
-        let (ox, oy) = (
-            gap + (i % cols) * (t + gap),
-            gap + (i / cols) * (t + label_h + gap),
-        );
+        let (ox, oy) = (gap + (i % cols) * (t + gap), gap + (i / cols) * (t + label_h + gap));
         for y in 0..t {
             for x in 0..t {
                 for c in 0..3 {
@@ -231,21 +179,9 @@ fn mosaic(
         }
         if label_h > 0 {
             let scale = (label_h / 7).max(1);
-            let label = if r.label.starts_with('k') {
-                r.label.clone()
-            } else {
-                format!("PSI {:.2}", r.psi)
-            };
+            let label = if r.label.starts_with('k') { r.label.clone() } else { format!("PSI {:.2}", r.psi) };
             let tx = ox + t.saturating_sub(font::text_width(&label, scale)) / 2;
-            font::draw_text(
-                &mut out,
-                w,
-                tx,
-                oy + t + scale,
-                &label,
-                scale,
-                [0.9, 0.9, 0.9],
-            );
+            font::draw_text(&mut out, w, tx, oy + t + scale, &label, scale, [0.9, 0.9, 0.9]);
         }
     }
     (w, h, out)
@@ -263,11 +199,7 @@ fn tone_map(p: &Psf) -> [Vec<f32>; 3] {
 /// # Errors
 /// Unknown extension, or the file cannot be written (nothing half-written is left behind).
 pub fn write(rows: &[PsfRow], out: &Path, zoom: usize) -> Result<()> {
-    let ext = out
-        .extension()
-        .and_then(|e| e.to_str())
-        .unwrap_or("")
-        .to_ascii_lowercase();
+    let ext = out.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
     match ext.as_str() {
         "npy" => {
             let (shape, data) = to_hwc(rows);
@@ -275,46 +207,18 @@ pub fn write(rows: &[PsfRow], out: &Path, zoom: usize) -> Result<()> {
         }
         "exr" => {
             let (w, h, planes) = mosaic(rows, 1, rows.len(), 0, 0, 0.0, |p| p.channels.clone());
-            write_atomic(out, |wr| {
-                exr::write_rgb_f32(wr, w, h, [&planes[0], &planes[1], &planes[2]])
-            })
+            write_atomic(out, |wr| exr::write_rgb_f32(wr, w, h, [&planes[0], &planes[1], &planes[2]]))
         }
         "png" => {
             // Display crop: the region holding 99% of every tile's energy.
-            let half = rows
-                .iter()
-                .map(|r| r.psf.needed_half(0.01))
-                .max()
-                .unwrap_or(0)
-                .max(4);
-            let shown: Vec<PsfRow> = rows
-                .iter()
-                .map(|r| PsfRow {
-                    psf: r.psf.resized(half),
-                    ..r.clone()
-                })
-                .collect();
+            let half = rows.iter().map(|r| r.psf.needed_half(0.01)).max().unwrap_or(0).max(4);
+            let shown: Vec<PsfRow> = rows.iter().map(|r| PsfRow { psf: r.psf.resized(half), ..r.clone() }).collect();
             let zoom = zoom.max(1);
-            let (w, h, planes) = mosaic(
-                &shown,
-                zoom,
-                12,
-                2,
-                7 * (zoom / 2).max(1) + 2 * zoom,
-                0.2,
-                tone_map,
-            );
-            let rgb: Vec<u8> = (0..w * h)
-                .flat_map(|i| {
-                    [0, 1, 2].map(|c| (planes[c][i] * 255.0).round().clamp(0.0, 255.0) as u8)
-                })
-                .collect();
+            let (w, h, planes) = mosaic(&shown, zoom, 12, 2, 7 * (zoom / 2).max(1) + 2 * zoom, 0.2, tone_map);
+            let rgb: Vec<u8> = (0..w * h).flat_map(|i| [0, 1, 2].map(|c| (planes[c][i] * 255.0).round().clamp(0.0, 255.0) as u8)).collect();
             write_atomic(out, |wr| png_io::write_rgb8(wr, w, h, &rgb))
         }
-        _ => Err(Error::Invalid(format!(
-            "{}: unknown output type {ext:?} (expected .npy, .exr or .png)",
-            out.display()
-        ))),
+        _ => Err(Error::Invalid(format!("{}: unknown output type {ext:?} (expected .npy, .exr or .png)", out.display()))),
     }
 }
 
@@ -324,14 +228,9 @@ mod tests {
 
     #[test]
     fn psi_lists_parse_and_bad_ones_say_why() {
-        assert_eq!(
-            parse_psi_list("0:8:5").unwrap(),
-            vec![0.0, 2.0, 4.0, 6.0, 8.0]
-        );
+        assert_eq!(parse_psi_list("0:8:5").unwrap(), vec![0.0, 2.0, 4.0, 6.0, 8.0]);
         assert_eq!(parse_psi_list("1, 2.5").unwrap(), vec![1.0, 2.5]);
-        assert!(parse_psi_list("0:8")
-            .unwrap_err()
-            .contains("start:stop:count"));
+        assert!(parse_psi_list("0:8").unwrap_err().contains("start:stop:count"));
         assert!(parse_psi_list("0:8:x").unwrap_err().contains("count"));
         assert!(parse_psi_list("a").unwrap_err().contains("not a number"));
         assert!(parse_psi_list("0,99").unwrap_err().contains("out of range"));
@@ -339,10 +238,7 @@ mod tests {
 
     #[test]
     fn window_rows_are_unit_sum_even_with_shifts_and_weights() {
-        let cam = CameraConfig {
-            kind: CameraKind::Parabolic,
-            ..Default::default()
-        };
+        let cam = CameraConfig { kind: CameraKind::Parabolic, ..Default::default() };
         let rows = compute(&OpticsConfig::default(), &cam, &PsfRequest::Window(9)).unwrap();
         assert_eq!(rows.len(), 9);
         for r in &rows {

@@ -12,16 +12,12 @@ pub fn mix(mut z: u64) -> u64 {
 
 /// Hash of a sequence of words.
 pub fn hash(words: &[u64]) -> u64 {
-    words
-        .iter()
-        .fold(0x5851_F42D_4C95_7F2D, |h, &w| mix(h ^ mix(w)))
+    words.iter().fold(0x5851_F42D_4C95_7F2D, |h, &w| mix(h ^ mix(w)))
 }
 
 /// FNV-1a of a string, for mixing names (video file names) into seeds.
 pub fn hash_str(s: &str) -> u64 {
-    s.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| {
-        (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)
-    })
+    s.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3))
 }
 
 /// Uniform in [0, 1) from 53 bits of a hash.
@@ -75,10 +71,7 @@ mod tests {
         let v: Vec<f64> = (0..n).map(|i| normal(hash(&[42, i]))).collect();
         let mean = v.iter().sum::<f64>() / n as f64;
         let var = v.iter().map(|x| (x - mean).powi(2)).sum::<f64>() / n as f64;
-        assert!(
-            mean.abs() < 0.01 && (var - 1.0).abs() < 0.01,
-            "mean {mean} var {var}"
-        );
+        assert!(mean.abs() < 0.01 && (var - 1.0).abs() < 0.01, "mean {mean} var {var}");
     }
 
     #[test]

@@ -6,10 +6,7 @@ use std::path::{Path, PathBuf};
 
 /// The temporary name used while `path` is written.
 pub fn temp_path(path: &Path) -> PathBuf {
-    let name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
 }
 
@@ -33,10 +30,7 @@ where
     })();
     if let Err(e) = res {
         let _ = std::fs::remove_file(&tmp);
-        return Err(crate::Error::Io {
-            path: path.to_path_buf(),
-            source: e,
-        });
+        return Err(crate::Error::Io { path: path.to_path_buf(), source: e });
     }
     Ok(())
 }

@@ -13,12 +13,7 @@ fn attr(out: &mut Vec<u8>, name: &str, ty: &str, value: &[u8]) {
 }
 
 /// Writes planar linear RGB (`planes[c][y * width + x]`, c = R, G, B) as float EXR.
-pub fn write_rgb_f32(
-    w: &mut dyn Write,
-    width: usize,
-    height: usize,
-    planes: [&[f32]; 3],
-) -> std::io::Result<()> {
+pub fn write_rgb_f32(w: &mut dyn Write, width: usize, height: usize, planes: [&[f32]; 3]) -> std::io::Result<()> {
     for p in planes {
         assert_eq!(p.len(), width * height);
     }

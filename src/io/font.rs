@@ -59,15 +59,7 @@ pub fn text_width(text: &str, scale: usize) -> usize {
 }
 
 /// Draws `text` into a planar RGB float image (`w` wide) at (x, y), clipped to the image.
-pub fn draw_text(
-    planes: &mut [Vec<f32>; 3],
-    w: usize,
-    x: usize,
-    y: usize,
-    text: &str,
-    scale: usize,
-    color: [f32; 3],
-) {
+pub fn draw_text(planes: &mut [Vec<f32>; 3], w: usize, x: usize, y: usize, text: &str, scale: usize, color: [f32; 3]) {
     let h = planes[0].len() / w.max(1);
     for (i, ch) in text.chars().enumerate() {
         let g = glyph(ch);

@@ -4,17 +4,9 @@ use std::io::Write;
 
 /// Writes a C-order float32 array of `shape`.
 pub fn write_f32(w: &mut dyn Write, shape: &[usize], data: &[f32]) -> std::io::Result<()> {
-    assert_eq!(
-        shape.iter().product::<usize>(),
-        data.len(),
-        "npy shape does not match the data"
-    );
+    assert_eq!(shape.iter().product::<usize>(), data.len(), "npy shape does not match the data");
     let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
-    let shape_s = if dims.len() == 1 {
-        format!("({},)", dims[0])
-    } else {
-        format!("({})", dims.join(", "))
-    };
+    let shape_s = if dims.len() == 1 { format!("({},)", dims[0]) } else { format!("({})", dims.join(", ")) };
     let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': {shape_s}, }}");
     // Magic (6) + version (2) + length (2) + header + '\n' is a multiple of 64.
     let pad = 64 - (10 + header.len() + 1) % 64;
@@ -35,25 +27,17 @@ pub fn read_f32(bytes: &[u8]) -> Result<(Vec<usize>, Vec<f32>), String> {
         return Err("not an .npy file".into());
     }
     let hlen = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
-    let header = std::str::from_utf8(bytes.get(10..10 + hlen).ok_or("truncated header")?)
-        .map_err(|e| e.to_string())?;
+    let header = std::str::from_utf8(bytes.get(10..10 + hlen).ok_or("truncated header")?).map_err(|e| e.to_string())?;
     if !header.contains("'<f4'") || header.contains("'fortran_order': True") {
         return Err(format!("unsupported npy header {header}"));
     }
-    let s = header
-        .split("'shape': (")
-        .nth(1)
-        .and_then(|s| s.split(')').next())
-        .ok_or("no shape")?;
+    let s = header.split("'shape': (").nth(1).and_then(|s| s.split(')').next()).ok_or("no shape")?;
     let shape: Vec<usize> = s
         .split(',')
         .filter(|t| !t.trim().is_empty())
         .map(|t| t.trim().parse().map_err(|_| format!("bad dim {t}")))
         .collect::<Result<_, _>>()?;
-    let data: Vec<f32> = bytes[10 + hlen..]
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect();
+    let data: Vec<f32> = bytes[10 + hlen..].chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
     if data.len() != shape.iter().product::<usize>() {
         return Err(format!("{} values for shape {shape:?}", data.len()));
     }

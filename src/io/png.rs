@@ -3,12 +3,7 @@
 use std::io::Write;
 
 /// Writes interleaved 8-bit RGB.
-pub fn write_rgb8(
-    w: &mut dyn Write,
-    width: usize,
-    height: usize,
-    rgb: &[u8],
-) -> std::io::Result<()> {
+pub fn write_rgb8(w: &mut dyn Write, width: usize, height: usize, rgb: &[u8]) -> std::io::Result<()> {
     assert_eq!(rgb.len(), width * height * 3);
     let mut enc = png::Encoder::new(w, width as u32, height as u32);
     enc.set_color(png::ColorType::Rgb);
@@ -31,15 +26,9 @@ pub fn read_rgb8(bytes: &[u8]) -> Result<(usize, usize, Vec<u8>), String> {
     let px = &buf[..info.buffer_size()];
     let rgb = match info.color_type {
         png::ColorType::Rgb => px.to_vec(),
-        png::ColorType::Rgba => px
-            .chunks_exact(4)
-            .flat_map(|p| [p[0], p[1], p[2]])
-            .collect(),
+        png::ColorType::Rgba => px.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect(),
         png::ColorType::Grayscale => px.iter().flat_map(|&g| [g, g, g]).collect(),
-        png::ColorType::GrayscaleAlpha => px
-            .chunks_exact(2)
-            .flat_map(|p| [p[0], p[0], p[0]])
-            .collect(),
+        png::ColorType::GrayscaleAlpha => px.chunks_exact(2).flat_map(|p| [p[0], p[0], p[0]]).collect(),
         png::ColorType::Indexed => return Err("indexed png not expanded".into()),
     };
     Ok((w, h, rgb))

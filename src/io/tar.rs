@@ -16,9 +16,7 @@ fn octal(field: &mut [u8], v: u64) {
 /// Writing fails, or the name is longer than 100 bytes.
 pub fn append(w: &mut dyn Write, name: &str, data: &[u8]) -> std::io::Result<()> {
     if name.len() > 100 {
-        return Err(std::io::Error::other(format!(
-            "tar member name {name:?} is longer than 100 bytes"
-        )));
+        return Err(std::io::Error::other(format!("tar member name {name:?} is longer than 100 bytes")));
     }
     let mut h = [0u8; 512];
     h[..name.len()].copy_from_slice(name.as_bytes());
@@ -59,31 +57,20 @@ pub fn read_all(mut r: impl Read) -> Result<Vec<(String, Vec<u8>)>, String> {
         if h.iter().all(|&b| b == 0) {
             return Ok(out);
         }
-        let stored = std::str::from_utf8(&h[148..154])
-            .ok()
-            .and_then(|s| u32::from_str_radix(s.trim(), 8).ok())
-            .ok_or("bad checksum field")?;
+        let stored =
+            std::str::from_utf8(&h[148..154]).ok().and_then(|s| u32::from_str_radix(s.trim(), 8).ok()).ok_or("bad checksum field")?;
         let mut c = h;
         c[148..156].copy_from_slice(b"        ");
         if c.iter().map(|&b| b as u32).sum::<u32>() != stored {
             return Err("tar header checksum mismatch".into());
         }
-        let name = String::from_utf8_lossy(&h[..100])
-            .trim_end_matches('\0')
-            .to_string();
-        let size = u64::from_str_radix(
-            std::str::from_utf8(&h[124..135])
-                .map_err(|e| e.to_string())?
-                .trim(),
-            8,
-        )
-        .map_err(|e| e.to_string())? as usize;
+        let name = String::from_utf8_lossy(&h[..100]).trim_end_matches('\0').to_string();
+        let size = u64::from_str_radix(std::str::from_utf8(&h[124..135]).map_err(|e| e.to_string())?.trim(), 8)
+            .map_err(|e| e.to_string())? as usize;
         let mut data = vec![0u8; size];
-        r.read_exact(&mut data)
-            .map_err(|_| format!("truncated member {name}"))?;
+        r.read_exact(&mut data).map_err(|_| format!("truncated member {name}"))?;
         let mut pad = vec![0u8; (512 - size % 512) % 512];
-        r.read_exact(&mut pad)
-            .map_err(|_| format!("truncated member {name}"))?;
+        r.read_exact(&mut pad).map_err(|_| format!("truncated member {name}"))?;
         if h[156] == b'0' || h[156] == 0 {
             out.push((name, data));
         }

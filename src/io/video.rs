@@ -25,8 +25,7 @@ pub struct VideoReader {
     flushed: bool,
     done: bool,
     pub frames_decoded: u64,
-    /// Bits per component of the source; up to 8 goes through RGB24 and is expanded exactly
-    /// (v * 257), deeper sources through RGB48.
+    /// Bits per component of the source; up to 8 gives 8-bit planes, deeper 16-bit planes.
     pub bit_depth: u32,
 }
 
@@ -57,45 +56,23 @@ impl VideoReader {
         if !path.exists() {
             return Err("no such file".into());
         }
-        let ictx = ff::format::input(&path)
-            .map_err(|e| format!("not a readable video ({})", fmt_err(e)))?;
-        let st = ictx
-            .streams()
-            .best(ff::media::Type::Video)
-            .ok_or("no video stream")?;
+        let ictx = ff::format::input(&path).map_err(|e| format!("not a readable video ({})", fmt_err(e)))?;
+        let st = ictx.streams().best(ff::media::Type::Video).ok_or("no video stream")?;
         let stream = st.index();
         let rate = st.avg_frame_rate();
-        let fps = if rate.denominator() != 0 {
-            rate.numerator() as f64 / rate.denominator() as f64
-        } else {
-            0.0
-        };
+        let fps = if rate.denominator() != 0 { rate.numerator() as f64 / rate.denominator() as f64 } else { 0.0 };
         let announced = st.frames();
-        let mut ctx =
-            ff::codec::context::Context::from_parameters(st.parameters()).map_err(fmt_err)?;
-        ctx.set_threading(ff::codec::threading::Config::kind(
-            ff::codec::threading::Type::Frame,
-        ));
-        let decoder = ctx
-            .decoder()
-            .video()
-            .map_err(|e| format!("no decoder ({})", fmt_err(e)))?;
-        let codec = decoder
-            .codec()
-            .map(|c| c.name().to_string())
-            .unwrap_or_default();
+        let mut ctx = ff::codec::context::Context::from_parameters(st.parameters()).map_err(fmt_err)?;
+        ctx.set_threading(ff::codec::threading::Config::kind(ff::codec::threading::Type::Frame));
+        let decoder = ctx.decoder().video().map_err(|e| format!("no decoder ({})", fmt_err(e)))?;
+        let codec = decoder.codec().map(|c| c.name().to_string()).unwrap_or_default();
         let info = InputInfo {
             width: decoder.width() as usize,
             height: decoder.height() as usize,
             fps,
             frames_announced: (announced > 0).then_some(announced as u64),
             codec,
-            pixel_format: format!(
-                "{:?} ({} bit)",
-                decoder.format(),
-                depth_of(decoder.format())
-            )
-            .to_lowercase(),
+            pixel_format: format!("{:?} ({} bit)", decoder.format(), depth_of(decoder.format())).to_lowercase(),
         };
         let bit_depth = depth_of(decoder.format());
         if info.width == 0 || info.height == 0 {
@@ -119,57 +96,33 @@ impl VideoReader {
     fn convert(&mut self) -> Result<Frame, String> {
         let (w, h) = (self.decoded.width(), self.decoded.height());
         let deep = self.bit_depth > 8;
-        let target = if deep {
-            ff::format::Pixel::RGB48LE
-        } else {
-            ff::format::Pixel::RGB24
-        };
+        // Planar G, B, R straight from swscale: no interleaving to undo later.
+        let target = if deep { ff::format::Pixel::GBRP16LE } else { ff::format::Pixel::GBRP };
         if self.scaler.is_none() {
-            let flags = ff::software::scaling::Flags::BILINEAR
-                | ff::software::scaling::Flags::ACCURATE_RND
-                | ff::software::scaling::Flags::FULL_CHR_H_INT;
-            let mut sc = ff::software::scaling::Context::get(
-                self.decoded.format(),
-                w,
-                h,
-                target,
-                w,
-                h,
-                flags,
-            )
-            .map_err(fmt_err)?;
+            let flags = ff::software::scaling::Flags::BILINEAR | ff::software::scaling::Flags::ACCURATE_RND | ff::software::scaling::Flags::FULL_CHR_H_INT;
+            let mut sc = ff::software::scaling::Context::get(self.decoded.format(), w, h, target, w, h, flags).map_err(fmt_err)?;
             set_colorspace(&mut sc, &self.decoded);
             self.scaler = Some(sc);
         }
-        self.scaler
-            .as_mut()
-            .expect("scaler set")
-            .run(&self.decoded, &mut self.rgb)
-            .map_err(fmt_err)?;
-        let stride = self.rgb.stride(0);
-        let bytes = self.rgb.data(0);
+        self.scaler.as_mut().expect("scaler set").run(&self.decoded, &mut self.rgb).map_err(fmt_err)?;
         let (w, h) = (w as usize, h as usize);
-        let mut out = Vec::with_capacity(w * h * 3);
-        for y in 0..h {
-            if deep {
-                let row = &bytes[y * stride..y * stride + w * 6];
-                out.extend(
-                    row.chunks_exact(2)
-                        .map(|b| u16::from_le_bytes([b[0], b[1]])),
-                );
-            } else {
-                out.extend(
-                    bytes[y * stride..y * stride + w * 3]
-                        .iter()
-                        .map(|&v| v as u16 * 257),
-                );
+        let rgb = &self.rgb;
+        // GBRP plane order is G (0), B (1), R (2).
+        let plane = |i: usize, bytes_per: usize| -> Vec<u8> {
+            let (stride, data) = (rgb.stride(i), rgb.data(i));
+            let mut v = Vec::with_capacity(w * h * bytes_per);
+            for y in 0..h {
+                v.extend_from_slice(&data[y * stride..y * stride + w * bytes_per]);
             }
-        }
-        Ok(Frame {
-            width: w,
-            height: h,
-            data: FrameData::Rgb48(out),
-        })
+            v
+        };
+        let data = if deep {
+            let to16 = |b: Vec<u8>| b.chunks_exact(2).map(|c| u16::from_le_bytes([c[0], c[1]])).collect::<Vec<u16>>();
+            FrameData::Planar16([to16(plane(2, 2)), to16(plane(0, 2)), to16(plane(1, 2))])
+        } else {
+            FrameData::Planar8([plane(2, 1), plane(0, 1), plane(1, 1)])
+        };
+        Ok(Frame::new(w, h, data))
     }
 
     /// The next frame, `None` at the end.
@@ -191,13 +144,7 @@ impl VideoReader {
                     return Ok(None);
                 }
                 Err(ff::Error::Other { errno }) if errno == ff::util::error::EAGAIN => {}
-                Err(e) => {
-                    return Err(format!(
-                        "decoding failed after frame {} ({})",
-                        self.frames_decoded,
-                        fmt_err(e)
-                    ))
-                }
+                Err(e) => return Err(format!("decoding failed after frame {} ({})", self.frames_decoded, fmt_err(e))),
             }
             if self.flushed {
                 self.done = true;
@@ -208,11 +155,7 @@ impl VideoReader {
                 Ok(()) => {
                     if packet.stream() == self.stream {
                         if let Err(e) = self.decoder.send_packet(&packet) {
-                            return Err(format!(
-                                "damaged data after frame {} ({})",
-                                self.frames_decoded,
-                                fmt_err(e)
-                            ));
+                            return Err(format!("damaged data after frame {} ({})", self.frames_decoded, fmt_err(e)));
                         }
                     }
                 }
@@ -220,13 +163,7 @@ impl VideoReader {
                     self.decoder.send_eof().map_err(fmt_err)?;
                     self.flushed = true;
                 }
-                Err(e) => {
-                    return Err(format!(
-                        "reading failed after frame {} ({})",
-                        self.frames_decoded,
-                        fmt_err(e)
-                    ))
-                }
+                Err(e) => return Err(format!("reading failed after frame {} ({})", self.frames_decoded, fmt_err(e))),
             }
         }
     }
@@ -252,9 +189,7 @@ fn set_colorspace(sc: &mut ff::software::scaling::Context, frame: &ff::frame::Vi
         ff::color::Space::FCC => ffi::SWS_CS_FCC,
         _ => ffi::SWS_CS_DEFAULT,
     };
-    let src_full = i32::from(
-        frame.color_range() == ff::color::Range::JPEG || is_full_range_yuv(frame.format()),
-    );
+    let src_full = i32::from(frame.color_range() == ff::color::Range::JPEG || is_full_range_yuv(frame.format()));
     // SAFETY: the context pointer is valid for the scaler's lifetime; the coefficient tables are
     // static arrays owned by libswscale.
     unsafe {

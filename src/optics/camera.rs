@@ -44,21 +44,12 @@ impl SubframeKernel {
     /// # Panics
     /// If `half < self.half_extent()`.
     pub fn render(&self, c: usize, half: usize) -> Vec<f32> {
-        assert!(
-            half >= self.half_extent(),
-            "kernel half-width {half} < {}",
-            self.half_extent()
-        );
+        assert!(half >= self.half_extent(), "kernel half-width {half} < {}", self.half_extent());
         let n = 2 * half + 1;
         let mut out = vec![0.0f32; n * n];
         let (fx, fy) = (self.shift[0].floor(), self.shift[1].floor());
         let (ax, ay) = (self.shift[0] - fx, self.shift[1] - fy);
-        let taps = [
-            (0, 0, (1.0 - ax) * (1.0 - ay)),
-            (1, 0, ax * (1.0 - ay)),
-            (0, 1, (1.0 - ax) * ay),
-            (1, 1, ax * ay),
-        ];
+        let taps = [(0, 0, (1.0 - ax) * (1.0 - ay)), (1, 0, ax * (1.0 - ay)), (0, 1, (1.0 - ax) * ay), (1, 1, ax * ay)];
         let p = &self.psf;
         let (ph, h) = (p.half() as isize, half as isize);
         for (dx, dy, w) in taps {
@@ -71,8 +62,7 @@ impl SubframeKernel {
                     let oy = y - ph + h + fy as isize + dy;
                     let ox = x - ph + h + fx as isize + dx;
                     if oy >= 0 && ox >= 0 && oy < n as isize && ox < n as isize {
-                        out[(oy * n as isize + ox) as usize] +=
-                            w * p.channels[c][(y * p.size as isize + x) as usize];
+                        out[(oy * n as isize + ox) as usize] += w * p.channels[c][(y * p.size as isize + x) as usize];
                     }
                 }
             }
@@ -151,10 +141,7 @@ impl Camera {
 
     /// psi of each of the N sub-frames.
     pub fn psi_schedule(&self, n: usize) -> Result<Vec<f64>, ConfigError> {
-        if !matches!(
-            self.cfg.kind,
-            CameraKind::PhaseCoded | CameraKind::FocusSweep
-        ) {
+        if !matches!(self.cfg.kind, CameraKind::PhaseCoded | CameraKind::FocusSweep) {
             return Ok(vec![0.0; n]);
         }
         if let Some(v) = &self.cfg.psi_values {
@@ -188,10 +175,7 @@ impl Camera {
                         let (t0, t1) = (k as f64 / n as f64, (k + 1) as f64 / n as f64);
                         (0..l)
                             .filter(|&j| code[j])
-                            .map(|j| {
-                                (t1.min((j + 1) as f64 / l as f64) - t0.max(j as f64 / l as f64))
-                                    .max(0.0)
-                            })
+                            .map(|j| (t1.min((j + 1) as f64 / l as f64) - t0.max(j as f64 / l as f64)).max(0.0))
                             .sum()
                     })
                     .collect();
@@ -228,12 +212,7 @@ impl Camera {
         }
         let p = Arc::new(lens.psf(psi, lens.support_half(psi.abs())));
         self.stats.lock().unwrap().psfs_computed += 1;
-        self.psfs
-            .lock()
-            .unwrap()
-            .entry(psi.to_bits())
-            .or_insert(p)
-            .clone()
+        self.psfs.lock().unwrap().entry(psi.to_bits()).or_insert(p).clone()
     }
 
     /// The N kernels of a window, computed once per N (PSFs in parallel on all cores), then
@@ -249,9 +228,7 @@ impl Camera {
         self.stats.lock().unwrap().window_misses += 1;
         let psis = self.psi_schedule(n)?;
         let mut psfs: Vec<Option<Arc<Psf>>> = vec![None; n];
-        let threads = std::thread::available_parallelism()
-            .map_or(1, |t| t.get())
-            .min(n.max(1));
+        let threads = std::thread::available_parallelism().map_or(1, |t| t.get()).min(n.max(1));
         std::thread::scope(|s| {
             for (t, chunk) in psfs.chunks_mut(n.div_ceil(threads).max(1)).enumerate() {
                 let psis = &psis;
@@ -263,24 +240,13 @@ impl Camera {
                 });
             }
         });
-        let psfs: Vec<Arc<Psf>> = psfs
-            .into_iter()
-            .map(|p| p.expect("every psf computed"))
-            .collect();
+        let psfs: Vec<Arc<Psf>> = psfs.into_iter().map(|p| p.expect("every psf computed")).collect();
         // One common size for the window: the largest that any kernel needs.
-        let half = psfs
-            .iter()
-            .map(|p| p.needed_half(self.optics.trim_energy))
-            .max()
-            .unwrap_or(0);
+        let half = psfs.iter().map(|p| p.needed_half(self.optics.trim_energy)).max().unwrap_or(0);
         let (weights, shifts) = (self.weights(n), self.shifts(n));
         let kernels: Vec<SubframeKernel> = (0..n)
             .map(|k| SubframeKernel {
-                psf: if psfs[k].half() == half {
-                    psfs[k].clone()
-                } else {
-                    Arc::new(psfs[k].resized(half))
-                },
+                psf: if psfs[k].half() == half { psfs[k].clone() } else { Arc::new(psfs[k].resized(half)) },
                 weight: weights[k],
                 shift: shifts[k],
                 psi: psis[k],
@@ -311,13 +277,8 @@ mod tests {
 
     #[test]
     fn conventional_with_diffraction_is_the_same_airy_spot_everywhere() {
-        let cfg = CameraConfig {
-            diffraction: true,
-            ..CameraConfig::new(CameraKind::Conventional)
-        };
-        let w = Camera::new(&OpticsConfig::default(), &cfg)
-            .window(7)
-            .unwrap();
+        let cfg = CameraConfig { diffraction: true, ..CameraConfig::new(CameraKind::Conventional) };
+        let w = Camera::new(&OpticsConfig::default(), &cfg).window(7).unwrap();
         assert!(w[0].psf.size > 1);
         assert!(w.iter().all(|k| k.psf == w[0].psf));
     }
@@ -336,18 +297,12 @@ mod tests {
         }
         let w9 = c.weights(9);
         assert!((w9.iter().sum::<f64>() - 1.0).abs() < 1e-12);
-        assert!(
-            w9.iter().any(|&x| (x - 1.0 / 9.0).abs() > 0.01),
-            "the code must modulate 9 sub-frames: {w9:?}"
-        );
+        assert!(w9.iter().any(|&x| (x - 1.0 / 9.0).abs() > 0.01), "the code must modulate 9 sub-frames: {w9:?}");
     }
 
     #[test]
     fn parabolic_shifts_follow_a_t_squared() {
-        let cfg = CameraConfig {
-            parabolic_amplitude_px: 6.0,
-            ..CameraConfig::new(CameraKind::Parabolic)
-        };
+        let cfg = CameraConfig { parabolic_amplitude_px: 6.0, ..CameraConfig::new(CameraKind::Parabolic) };
         let c = Camera::new(&OpticsConfig::default(), &cfg);
         let n = 11;
         for (k, s) in c.shifts(n).iter().enumerate() {
@@ -356,9 +311,7 @@ mod tests {
         }
         // Velocity (first difference) changes linearly: the second difference is constant.
         let s = c.shifts(n);
-        let d2: Vec<f64> = (1..n - 1)
-            .map(|k| s[k + 1][0] - 2.0 * s[k][0] + s[k - 1][0])
-            .collect();
+        let d2: Vec<f64> = (1..n - 1).map(|k| s[k + 1][0] - 2.0 * s[k][0] + s[k - 1][0]).collect();
         assert!(d2.iter().all(|d| (d - d2[0]).abs() < 1e-12 && *d > 0.0));
     }
 
@@ -367,10 +320,7 @@ mod tests {
         let sweep = cam(CameraKind::FocusSweep).window(9).unwrap();
         let (first, last) = (&sweep[0].psf, &sweep[8].psf);
         for c in 0..3 {
-            assert!(
-                last.peak(c) < 0.5 * first.peak(c),
-                "channel {c} must widen along the sweep"
-            );
+            assert!(last.peak(c) < 0.5 * first.peak(c), "channel {c} must widen along the sweep");
         }
         let coded = cam(CameraKind::PhaseCoded).window(9).unwrap();
         assert_eq!(coded[0].psf.sharpest_channel(), 2);
@@ -387,19 +337,12 @@ mod tests {
         let s = c.cache_stats();
         assert_eq!((s.window_misses, s.window_hits, s.psfs_computed), (1, 1, 9));
         let psis: Vec<f64> = a.iter().map(|k| k.psi).collect();
-        assert!(
-            (psis[0] - 8.0 * 0.5 / 9.0).abs() < 1e-12 && (psis[8] - 8.0 * 8.5 / 9.0).abs() < 1e-12
-        );
+        assert!((psis[0] - 8.0 * 0.5 / 9.0).abs() < 1e-12 && (psis[8] - 8.0 * 8.5 / 9.0).abs() < 1e-12);
     }
 
     #[test]
     fn rendered_kernel_sums_to_weight_and_carries_the_shift() {
-        let k = SubframeKernel {
-            psf: Arc::new(Psf::delta()),
-            weight: 0.25,
-            shift: [1.5, -2.0],
-            psi: 0.0,
-        };
+        let k = SubframeKernel { psf: Arc::new(Psf::delta()), weight: 0.25, shift: [1.5, -2.0], psi: 0.0 };
         let half = k.half_extent();
         let r = k.render(0, half);
         let n = 2 * half + 1;
@@ -410,21 +353,13 @@ mod tests {
             cx += (i % n) as f64 * *v as f64;
             cy += (i / n) as f64 * *v as f64;
         }
-        assert!(
-            (cx / 0.25 - half as f64 - 1.5).abs() < 1e-6
-                && (cy / 0.25 - half as f64 + 2.0).abs() < 1e-6
-        );
+        assert!((cx / 0.25 - half as f64 - 1.5).abs() < 1e-6 && (cy / 0.25 - half as f64 + 2.0).abs() < 1e-6);
     }
 
     #[test]
     fn psi_values_of_the_wrong_length_are_an_error_naming_the_key() {
-        let cfg = CameraConfig {
-            psi_values: Some(vec![0.0, 1.0]),
-            ..Default::default()
-        };
-        let e = Camera::new(&OpticsConfig::default(), &cfg)
-            .window(9)
-            .unwrap_err();
+        let cfg = CameraConfig { psi_values: Some(vec![0.0, 1.0]), ..Default::default() };
+        let e = Camera::new(&OpticsConfig::default(), &cfg).window(9).unwrap_err();
         assert_eq!(e.key, "camera.psi_values");
     }
 }

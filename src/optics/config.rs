@@ -102,18 +102,7 @@ pub struct OpticsConfig {
 impl Default for OpticsConfig {
     fn default() -> Self {
         OpticsConfig {
-            rings: vec![
-                Ring {
-                    inner: 0.55,
-                    outer: 0.8,
-                    phase: 6.5,
-                },
-                Ring {
-                    inner: 0.8,
-                    outer: 1.0,
-                    phase: 13.2,
-                },
-            ],
+            rings: vec![Ring { inner: 0.55, outer: 0.8, phase: 6.5 }, Ring { inner: 0.8, outer: 1.0, phase: 13.2 }],
             ref_wavelength_nm: 455.0,
             dispersion: Dispersion::None,
             defocus_sign: 1.0,
@@ -151,21 +140,11 @@ pub(crate) struct Checker<'a> {
 
 impl<'a> Checker<'a> {
     pub fn new(prefix: &'a str) -> Self {
-        Checker {
-            prefix,
-            errors: Vec::new(),
-        }
+        Checker { prefix, errors: Vec::new() }
     }
     pub fn fail(&mut self, key: &str, message: impl Into<String>) {
-        let key = if self.prefix.is_empty() {
-            key.to_string()
-        } else {
-            format!("{}.{key}", self.prefix)
-        };
-        self.errors.push(ConfigError {
-            key,
-            message: message.into(),
-        });
+        let key = if self.prefix.is_empty() { key.to_string() } else { format!("{}.{key}", self.prefix) };
+        self.errors.push(ConfigError { key, message: message.into() });
     }
     pub fn range(&mut self, key: &str, v: f64, lo: f64, hi: f64) {
         if !(v >= lo && v <= hi) {
@@ -184,34 +163,22 @@ impl OpticsConfig {
     pub fn airy_radius_ref_px(&self) -> f64 {
         self.airy_radius_px.unwrap_or_else(|| {
             let lambda_m = self.ref_wavelength_nm * 1e-9;
-            0.61 * lambda_m * (self.focal_length_mm * 1e-3)
-                / (self.aperture_radius_mm * 1e-3)
-                / (self.pixel_pitch_um * 1e-6)
+            0.61 * lambda_m * (self.focal_length_mm * 1e-3) / (self.aperture_radius_mm * 1e-3) / (self.pixel_pitch_um * 1e-6)
         })
     }
 
     /// Channel spectra in R, G, B order.
     pub fn channels(&self) -> [ChannelSpectrum; 3] {
         match (self.spectrum, &self.wavelengths_nm) {
-            (Spectrum::Lines, Some(w)) => [&w.r, &w.g, &w.b].map(|l| ChannelSpectrum {
-                wavelengths_nm: l.clone(),
-                weights: vec![1.0; l.len()],
-            }),
-            (Spectrum::Lines, None) => [610.0, 530.0, 455.0].map(|l| ChannelSpectrum {
-                wavelengths_nm: vec![l],
-                weights: vec![1.0],
-            }),
+            (Spectrum::Lines, Some(w)) => {
+                [&w.r, &w.g, &w.b].map(|l| ChannelSpectrum { wavelengths_nm: l.clone(), weights: vec![1.0; l.len()] })
+            }
+            (Spectrum::Lines, None) => [610.0, 530.0, 455.0].map(|l| ChannelSpectrum { wavelengths_nm: vec![l], weights: vec![1.0] }),
             (Spectrum::Bands, _) => [600.0, 530.0, 460.0].map(|c| {
                 let sigma = 70.0 / 2.3548;
                 let wavelengths_nm: Vec<f64> = (-2..=2).map(|i| c + 20.0 * i as f64).collect();
-                let weights = wavelengths_nm
-                    .iter()
-                    .map(|l| (-(l - c) * (l - c) / (2.0 * sigma * sigma)).exp())
-                    .collect();
-                ChannelSpectrum {
-                    wavelengths_nm,
-                    weights,
-                }
+                let weights = wavelengths_nm.iter().map(|l| (-(l - c) * (l - c) / (2.0 * sigma * sigma)).exp()).collect();
+                ChannelSpectrum { wavelengths_nm, weights }
             }),
         }
     }
@@ -222,13 +189,7 @@ impl OpticsConfig {
         for (i, r) in self.rings.iter().enumerate() {
             let k = format!("rings[{i}]");
             if !(0.0 <= r.inner && r.inner < r.outer && r.outer <= 1.0) {
-                c.fail(
-                    &k,
-                    format!(
-                        "needs 0 <= inner < outer <= 1 (got inner {} outer {})",
-                        r.inner, r.outer
-                    ),
-                );
+                c.fail(&k, format!("needs 0 <= inner < outer <= 1 (got inner {} outer {})", r.inner, r.outer));
             }
             if !r.phase.is_finite() {
                 c.fail(&k, "phase must be finite");
@@ -236,10 +197,7 @@ impl OpticsConfig {
         }
         c.range("ref_wavelength_nm", self.ref_wavelength_nm, 300.0, 1100.0);
         if self.defocus_sign != 1.0 && self.defocus_sign != -1.0 {
-            c.fail(
-                "defocus_sign",
-                format!("{} is not 1 or -1", self.defocus_sign),
-            );
+            c.fail("defocus_sign", format!("{} is not 1 or -1", self.defocus_sign));
         }
         if let Some(w) = &self.wavelengths_nm {
             if self.spectrum != Spectrum::Lines {
@@ -247,10 +205,7 @@ impl OpticsConfig {
             }
             for (name, l) in [("r", &w.r), ("g", &w.g), ("b", &w.b)] {
                 if l.is_empty() {
-                    c.fail(
-                        &format!("wavelengths_nm.{name}"),
-                        "needs at least one wavelength",
-                    );
+                    c.fail(&format!("wavelengths_nm.{name}"), "needs at least one wavelength");
                 }
                 for &x in l {
                     c.range(&format!("wavelengths_nm.{name}"), x, 300.0, 1100.0);
@@ -267,12 +222,7 @@ impl OpticsConfig {
         c.range_usize("pupil_samples", self.pupil_samples, 16, 1024);
         c.range("trim_energy", self.trim_energy, 0.0, 0.1);
         if self.airy_radius_px.is_none() && c.errors.is_empty() {
-            c.range(
-                "airy_radius_px (from focal_length_mm, aperture_radius_mm, pixel_pitch_um)",
-                self.airy_radius_ref_px(),
-                0.05,
-                50.0,
-            );
+            c.range("airy_radius_px (from focal_length_mm, aperture_radius_mm, pixel_pitch_um)", self.airy_radius_ref_px(), 0.05, 50.0);
         }
         c.errors
     }
@@ -368,10 +318,7 @@ impl Default for CameraConfig {
 
 impl CameraConfig {
     pub fn new(kind: CameraKind) -> Self {
-        CameraConfig {
-            kind,
-            ..Default::default()
-        }
+        CameraConfig { kind, ..Default::default() }
     }
 
     pub fn validate(&self, prefix: &str) -> Vec<ConfigError> {
@@ -387,22 +334,12 @@ impl CameraConfig {
                 c.range("psi_values", *p, -50.0, 50.0);
             }
         }
-        if self.flutter_code.is_empty()
-            || !self.flutter_code.chars().all(|ch| ch == '0' || ch == '1')
-        {
-            c.fail(
-                "flutter_code",
-                format!("{:?} is not a string of 0 and 1", self.flutter_code),
-            );
+        if self.flutter_code.is_empty() || !self.flutter_code.chars().all(|ch| ch == '0' || ch == '1') {
+            c.fail("flutter_code", format!("{:?} is not a string of 0 and 1", self.flutter_code));
         } else if !self.flutter_code.contains('1') {
             c.fail("flutter_code", "has no open chop");
         }
-        c.range(
-            "parabolic_amplitude_px",
-            self.parabolic_amplitude_px,
-            -200.0,
-            200.0,
-        );
+        c.range("parabolic_amplitude_px", self.parabolic_amplitude_px, -200.0, 200.0);
         c.errors
     }
 }

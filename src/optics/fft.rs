@@ -51,10 +51,13 @@ pub struct FftConv {
     c2r: Arc<dyn ComplexToReal<f32>>,
     col_fwd: Arc<dyn Fft<f32>>,
     col_inv: Arc<dyn Fft<f32>>,
-    row_spec: Vec<Complex32>,
+    /// Row spectra, row-major `hp x wc`.
     rows: Vec<Complex32>,
+    /// A spectrum buffer for `accumulate`.
+    spec: Vec<Complex32>,
+    /// An image buffer for `forward_mul`.
+    img: Vec<f32>,
     scratch: Vec<Complex32>,
-    real_row: Vec<f32>,
 }
 
 impl Clone for FftConv {
@@ -72,15 +75,11 @@ impl FftConv {
         let col_fwd = cp.plan_fft_forward(hp);
         let col_inv = cp.plan_fft_inverse(hp);
         let wc = wp / 2 + 1;
-        let scratch_len = [
-            r2c.get_scratch_len(),
-            c2r.get_scratch_len(),
-            col_fwd.get_inplace_scratch_len(),
-            col_inv.get_inplace_scratch_len(),
-        ]
-        .into_iter()
-        .max()
-        .unwrap_or(0);
+        let scratch_len =
+            [r2c.get_scratch_len(), c2r.get_scratch_len(), col_fwd.get_inplace_scratch_len(), col_inv.get_inplace_scratch_len()]
+                .into_iter()
+                .max()
+                .unwrap_or(0);
         FftConv {
             hp,
             wp,
@@ -89,10 +88,10 @@ impl FftConv {
             c2r,
             col_fwd,
             col_inv,
-            row_spec: vec![Complex32::new(0.0, 0.0); wc],
             rows: vec![Complex32::new(0.0, 0.0); hp * wc],
+            spec: vec![Complex32::new(0.0, 0.0); hp * wc],
+            img: Vec::new(),
             scratch: vec![Complex32::new(0.0, 0.0); scratch_len],
-            real_row: vec![0.0; wp],
         }
     }
 
@@ -108,17 +107,15 @@ impl FftConv {
     /// Forward transform of an `hp x wp` row-major image into `out` (transposed layout).
     /// `img` is used as scratch and left unspecified.
     pub fn forward(&mut self, img: &mut [f32], out: &mut [Complex32]) {
-        let (hp, wp) = (self.hp, self.wp);
+        let (hp, wp, wc) = (self.hp, self.wp, self.wc);
         assert_eq!(img.len(), hp * wp);
-        for y in 0..hp {
-            let row = &mut img[y * wp..(y + 1) * wp];
-            self.r2c
-                .process_with_scratch(row, &mut self.row_spec, &mut self.scratch)
-                .expect("r2c sizes match");
-            for (x, v) in self.row_spec.iter().enumerate() {
-                out[x * hp + y] = *v;
-            }
+        // Row transforms into a row-major buffer, then a blocked transpose: contiguous writes.
+        let mut rows = std::mem::take(&mut self.rows);
+        for (y, row) in img.chunks_exact_mut(wp).enumerate() {
+            self.r2c.process_with_scratch(row, &mut rows[y * wc..(y + 1) * wc], &mut self.scratch).expect("r2c sizes match");
         }
+        transpose(&rows, out, hp, wc);
+        self.rows = rows;
         self.col_fwd.process_with_scratch(out, &mut self.scratch);
     }
 
@@ -126,12 +123,7 @@ impl FftConv {
     pub fn kernel_spectrum(&mut self, kernel: &[f32]) -> Vec<Complex32> {
         let n = (kernel.len() as f64).sqrt().round() as usize;
         assert_eq!(n * n, kernel.len(), "kernel must be square");
-        assert!(
-            n % 2 == 1 && n <= self.hp && n <= self.wp,
-            "kernel {n} does not fit {}x{}",
-            self.hp,
-            self.wp
-        );
+        assert!(n % 2 == 1 && n <= self.hp && n <= self.wp, "kernel {n} does not fit {}x{}", self.hp, self.wp);
         let h = (n / 2) as isize;
         let mut img = vec![0.0f32; self.hp * self.wp];
         for ky in 0..n as isize {
@@ -146,17 +138,24 @@ impl FftConv {
         out
     }
 
+    /// `out = F(img) * kernel_spec`; `img` is copied first and left untouched.
+    pub fn forward_mul(&mut self, img: &[f32], kernel_spec: &[Complex32], out: &mut [Complex32]) {
+        let mut buf = std::mem::take(&mut self.img);
+        buf.resize(self.hp * self.wp, 0.0);
+        buf.copy_from_slice(img);
+        self.forward(&mut buf, out);
+        self.img = buf;
+        for (o, k) in out.iter_mut().zip(kernel_spec) {
+            *o *= k;
+        }
+    }
+
     /// `acc += F(img) * kernel_spec`.
-    pub fn accumulate(
-        &mut self,
-        img: &mut [f32],
-        kernel_spec: &[Complex32],
-        acc: &mut [Complex32],
-    ) {
-        let mut spec = std::mem::take(&mut self.rows);
+    pub fn accumulate(&mut self, img: &mut [f32], kernel_spec: &[Complex32], acc: &mut [Complex32]) {
+        let mut spec = std::mem::take(&mut self.spec);
         self.forward(img, &mut spec);
         mul_acc(&spec, kernel_spec, acc);
-        self.rows = spec;
+        self.spec = spec;
     }
 
     /// Inverse transform of a spectrum (consumed as scratch) into an `hp x wp` image,
@@ -165,20 +164,31 @@ impl FftConv {
         let (hp, wp, wc) = (self.hp, self.wp, self.wc);
         self.col_inv.process_with_scratch(spec, &mut self.scratch);
         let norm = 1.0 / (hp * wp) as f32;
-        for y in 0..hp {
-            for x in 0..wc {
-                self.row_spec[x] = spec[x * hp + y];
-            }
+        let mut rows = std::mem::take(&mut self.rows);
+        transpose(spec, &mut rows, wc, hp);
+        for (y, row) in rows.chunks_exact_mut(wc).enumerate() {
             // A real signal's DC and (even-length) Nyquist bins are real.
-            self.row_spec[0].im = 0.0;
+            row[0].im = 0.0;
             if wp % 2 == 0 {
-                self.row_spec[wc - 1].im = 0.0;
+                row[wc - 1].im = 0.0;
             }
-            self.c2r
-                .process_with_scratch(&mut self.row_spec, &mut self.real_row, &mut self.scratch)
-                .expect("c2r sizes match");
-            for (o, v) in out[y * wp..(y + 1) * wp].iter_mut().zip(&self.real_row) {
-                *o = v * norm;
+            let o = &mut out[y * wp..(y + 1) * wp];
+            self.c2r.process_with_scratch(row, o, &mut self.scratch).expect("c2r sizes match");
+            o.iter_mut().for_each(|v| *v *= norm);
+        }
+        self.rows = rows;
+    }
+}
+
+/// Blocked transpose of an `r x c` row-major matrix into `c x r`.
+fn transpose(src: &[Complex32], dst: &mut [Complex32], r: usize, c: usize) {
+    const B: usize = 32;
+    for i0 in (0..r).step_by(B) {
+        for j0 in (0..c).step_by(B) {
+            for i in i0..(i0 + B).min(r) {
+                for j in j0..(j0 + B).min(c) {
+                    dst[j * r + i] = src[i * c + j];
+                }
             }
         }
     }
@@ -228,9 +238,7 @@ mod tests {
     use super::*;
 
     fn lcg(seed: &mut u64) -> f32 {
-        *seed = seed
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
+        *seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
         ((*seed >> 40) as f32) / (1u64 << 24) as f32
     }
 
@@ -239,8 +247,7 @@ mod tests {
         let mut out = vec![0.0f32; hp * wp];
         for y in 0..h + 2 * m {
             for x in 0..w + 2 * m {
-                out[y * wp + x] = img
-                    [reflect(y as isize - m as isize, h) * w + reflect(x as isize - m as isize, w)];
+                out[y * wp + x] = img[reflect(y as isize - m as isize, h) * w + reflect(x as isize - m as isize, w)];
             }
         }
         out
@@ -251,12 +258,8 @@ mod tests {
         let (h, w, kn) = (37, 53, 9);
         let m = kn / 2;
         let mut seed = 7;
-        let imgs: Vec<Vec<f32>> = (0..3)
-            .map(|_| (0..h * w).map(|_| lcg(&mut seed)).collect())
-            .collect();
-        let kernels: Vec<Vec<f32>> = (0..3)
-            .map(|_| (0..kn * kn).map(|_| lcg(&mut seed)).collect())
-            .collect();
+        let imgs: Vec<Vec<f32>> = (0..3).map(|_| (0..h * w).map(|_| lcg(&mut seed)).collect()).collect();
+        let kernels: Vec<Vec<f32>> = (0..3).map(|_| (0..kn * kn).map(|_| lcg(&mut seed)).collect()).collect();
         let (hp, wp) = (fast_size(h + 2 * m), fast_size(w + 2 * m));
         let mut conv = FftConv::new(hp, wp);
         let mut acc = conv.zero_spectrum();

@@ -8,12 +8,10 @@
 pub mod camera;
 pub mod config;
 pub mod fft;
+pub mod lowrank;
 pub mod psf;
 pub mod transfer;
 
 pub use camera::{CacheStats, Camera, SubframeKernel};
-pub use config::{
-    Axis, CameraConfig, CameraKind, ConfigError, Dispersion, OpticsConfig, PsiSchedule, Ring,
-    Spectrum,
-};
+pub use config::{Axis, CameraConfig, CameraKind, ConfigError, Dispersion, OpticsConfig, PsiSchedule, Ring, Spectrum};
 pub use psf::{Lens, Psf};

@@ -33,10 +33,7 @@ pub struct Psf {
 impl Psf {
     /// A delta: the identity kernel of an ideal lens.
     pub fn delta() -> Psf {
-        Psf {
-            size: 1,
-            channels: [vec![1.0], vec![1.0], vec![1.0]],
-        }
+        Psf { size: 1, channels: [vec![1.0], vec![1.0], vec![1.0]] }
     }
 
     pub fn half(&self) -> usize {
@@ -68,11 +65,7 @@ impl Psf {
         // disc of the same area (radius 1/sqrt(pi)).
         let (mut prev_r, mut acc) = (0.0, 0.0);
         for (k, (d2, e)) in rings.into_iter().enumerate() {
-            let r = if k == 0 {
-                1.0 / std::f64::consts::PI.sqrt()
-            } else {
-                (d2 as f64).sqrt()
-            };
+            let r = if k == 0 { 1.0 / std::f64::consts::PI.sqrt() } else { (d2 as f64).sqrt() };
             if acc + e >= target {
                 return prev_r + (r - prev_r) * (target - acc) / e.max(1e-300);
             }
@@ -84,19 +77,13 @@ impl Psf {
 
     /// Channel with the highest peak (0 = R, 1 = G, 2 = B).
     pub fn sharpest_channel(&self) -> usize {
-        (0..3)
-            .max_by(|&a, &b| self.peak(a).total_cmp(&self.peak(b)))
-            .unwrap_or(0)
+        (0..3).max_by(|&a, &b| self.peak(a).total_cmp(&self.peak(b))).unwrap_or(0)
     }
 
     /// Smallest half-width keeping all but `eps` of every channel's energy.
     pub fn needed_half(&self, eps: f64) -> usize {
         let h = self.half();
-        (0..=h)
-            .find(|&k| {
-                (0..3).all(|c| 1.0 - self.box_sum(c, k) <= eps * self.channel_sum(c).max(1e-30))
-            })
-            .unwrap_or(h)
+        (0..=h).find(|&k| (0..3).all(|c| 1.0 - self.box_sum(c, k) <= eps * self.channel_sum(c).max(1e-30))).unwrap_or(h)
     }
 
     fn box_sum(&self, c: usize, k: usize) -> f64 {
@@ -121,8 +108,7 @@ impl Psf {
                 for x in 0..n as isize {
                     let (sy, sx) = (y - h1 + h0, x - h1 + h0);
                     if sy >= 0 && sx >= 0 && sy < self.size as isize && sx < self.size as isize {
-                        out[(y * n as isize + x) as usize] =
-                            self.channels[c][(sy * self.size as isize + sx) as usize];
+                        out[(y * n as isize + x) as usize] = self.channels[c][(sy * self.size as isize + sx) as usize];
                     }
                 }
             }
@@ -148,12 +134,7 @@ pub struct Lens {
 impl Lens {
     /// `masked = false` gives the clear aperture of the same lens.
     pub fn new(cfg: &OpticsConfig, masked: bool) -> Lens {
-        Lens {
-            cfg: cfg.clone(),
-            masked,
-            channels: cfg.channels(),
-            airy_ref: cfg.airy_radius_ref_px(),
-        }
+        Lens { cfg: cfg.clone(), masked, channels: cfg.channels(), airy_ref: cfg.airy_radius_ref_px() }
     }
 
     pub fn config(&self) -> &OpticsConfig {
@@ -179,12 +160,7 @@ impl Lens {
         let d = &self.cfg.dispersion;
         let l0 = self.cfg.ref_wavelength_nm;
         let scale = (l0 / lambda_nm) * (d.index(lambda_nm) - 1.0) / (d.index(l0) - 1.0);
-        self.cfg
-            .rings
-            .iter()
-            .filter(|r| rho >= r.inner && rho < r.outer)
-            .map(|r| r.phase * scale)
-            .sum()
+        self.cfg.rings.iter().filter(|r| rho >= r.inner && rho < r.outer).map(|r| r.phase * scale).sum()
     }
 
     /// Complex pupil on an `n x n` grid over [-1, 1]^2; each cell is the mean of 4 x 4
@@ -217,9 +193,7 @@ impl Lens {
     /// Pupil cell centres along one axis.
     fn pupil_coords(&self) -> Vec<f64> {
         let n = self.cfg.pupil_samples;
-        (0..n)
-            .map(|i| -1.0 + (i as f64 + 0.5) * 2.0 / n as f64)
-            .collect()
+        (0..n).map(|i| -1.0 + (i as f64 + 0.5) * 2.0 / n as f64).collect()
     }
 
     /// Optical field at arbitrary sensor points (pixels from the optical axis): used for
@@ -232,10 +206,7 @@ impl Lens {
         points
             .iter()
             .map(|&(x, y)| {
-                let ex: Vec<Complex64> = rho
-                    .iter()
-                    .map(|r| Complex64::from_polar(1.0, -k * x * r))
-                    .collect();
+                let ex: Vec<Complex64> = rho.iter().map(|r| Complex64::from_polar(1.0, -k * x * r)).collect();
                 let mut acc = Complex64::new(0.0, 0.0);
                 for j in 0..n {
                     let ey = Complex64::from_polar(1.0, -k * y * rho[j]);
@@ -257,18 +228,10 @@ impl Lens {
         let size = 2 * half + 1;
         let m = size * s;
         // Sample positions in pixels, centred on the middle pixel.
-        let xs: Vec<f64> = (0..m)
-            .map(|i| (i as f64 + 0.5) / s as f64 - 0.5 - half as f64)
-            .collect();
+        let xs: Vec<f64> = (0..m).map(|i| (i as f64 + 0.5) / s as f64 - 0.5 - half as f64).collect();
         let k = 2.0 * PI * 0.61 / self.airy_radius_px(lambda_nm);
         // E[a][i] = exp(-i k xs[a] rho[i]); the field is U = E P E^T.
-        let e: Vec<Complex64> = xs
-            .iter()
-            .flat_map(|&x| {
-                rho.iter()
-                    .map(move |&r| Complex64::from_polar(1.0, -k * x * r))
-            })
-            .collect();
+        let e: Vec<Complex64> = xs.iter().flat_map(|&x| rho.iter().map(move |&r| Complex64::from_polar(1.0, -k * x * r))).collect();
         // T = P E^T: n x m.
         let mut t = vec![Complex64::new(0.0, 0.0); n * m];
         for j in 0..n {
@@ -302,11 +265,7 @@ impl Lens {
     /// Half-width that holds the PSF of any psi up to `psi_max` with room for diffraction
     /// lobes: the geometric radius plus six Airy radii of the longest wavelength.
     pub fn support_half(&self, psi_max: f64) -> usize {
-        let lmax = self
-            .channels
-            .iter()
-            .flat_map(|c| c.wavelengths_nm.iter().copied())
-            .fold(0.0, f64::max);
+        let lmax = self.channels.iter().flat_map(|c| c.wavelengths_nm.iter().copied()).fold(0.0, f64::max);
         (self.geometric_radius_px(psi_max) + 6.0 * self.airy_radius_px(lmax)).ceil() as usize + 1
     }
 
@@ -319,9 +278,7 @@ impl Lens {
             let mut acc = vec![0.0f64; size * size];
             for (l, w) in spec.wavelengths_nm.iter().zip(&spec.weights) {
                 let mono = self.psf_mono(psi_ref, *l, half);
-                acc.iter_mut()
-                    .zip(mono)
-                    .for_each(|(a, m)| *a += m * w / wsum);
+                acc.iter_mut().zip(mono).for_each(|(a, m)| *a += m * w / wsum);
             }
             acc.into_iter().map(|v| v as f32).collect()
         });
@@ -360,10 +317,7 @@ mod tests {
             for psi in [0.0, 3.0, 8.0] {
                 let p = lens(masked).psf_auto(psi);
                 for c in 0..3 {
-                    assert!(
-                        (p.channel_sum(c) - 1.0).abs() < 1e-5,
-                        "masked {masked} psi {psi} c {c}"
-                    );
+                    assert!((p.channel_sum(c) - 1.0).abs() < 1e-5, "masked {masked} psi {psi} c {c}");
                 }
             }
         }
@@ -383,11 +337,7 @@ mod tests {
         for (r, u) in radii.iter().zip(field) {
             let v = 3.831706 * r / a;
             let airy = (2.0 * bessel_j1(v) / v).powi(2);
-            assert!(
-                (u.norm_sqr() / i0 - airy).abs() < 2e-3,
-                "r {r}: {} vs {airy}",
-                u.norm_sqr() / i0
-            );
+            assert!((u.norm_sqr() / i0 - airy).abs() < 2e-3, "r {r}: {} vs {airy}", u.norm_sqr() / i0);
         }
     }
 
@@ -397,25 +347,12 @@ mod tests {
         let l = Lens::new(&cfg, false);
         for lambda in [455.0, 530.0, 610.0] {
             // 1.22 lambda F# with F# = f / 2R, in pixels of pitch p.
-            let expect =
-                1.22 * lambda * 1e-9 * (cfg.focal_length_mm / (2.0 * cfg.aperture_radius_mm))
-                    / (cfg.pixel_pitch_um * 1e-6);
-            let pts: Vec<(f64, f64)> = (0..400)
-                .map(|i| (0.5 * expect + i as f64 * expect / 400.0, 0.0))
-                .collect();
-            let inten: Vec<f64> = l
-                .field_at(0.0, lambda, &pts)
-                .iter()
-                .map(|u| u.norm_sqr())
-                .collect();
-            let imin = (1..inten.len() - 1)
-                .find(|&i| inten[i] < inten[i - 1] && inten[i] <= inten[i + 1])
-                .unwrap();
+            let expect = 1.22 * lambda * 1e-9 * (cfg.focal_length_mm / (2.0 * cfg.aperture_radius_mm)) / (cfg.pixel_pitch_um * 1e-6);
+            let pts: Vec<(f64, f64)> = (0..400).map(|i| (0.5 * expect + i as f64 * expect / 400.0, 0.0)).collect();
+            let inten: Vec<f64> = l.field_at(0.0, lambda, &pts).iter().map(|u| u.norm_sqr()).collect();
+            let imin = (1..inten.len() - 1).find(|&i| inten[i] < inten[i - 1] && inten[i] <= inten[i + 1]).unwrap();
             let r = pts[imin].0;
-            assert!(
-                (r / expect - 1.0).abs() < 0.02,
-                "lambda {lambda}: dark ring at {r}, expected {expect}"
-            );
+            assert!((r / expect - 1.0).abs() < 0.02, "lambda {lambda}: dark ring at {r}, expected {expect}");
         }
     }
 
@@ -439,50 +376,27 @@ mod tests {
                     (r * t.cos(), r * t.sin())
                 })
                 .collect();
-            let v: Vec<f64> = l
-                .field_at(0.0, 530.0, &angles)
-                .iter()
-                .map(|u| u.norm_sqr())
-                .collect();
-            let (lo, hi) = v
-                .iter()
-                .fold((f64::MAX, 0.0f64), |(lo, hi), &x| (lo.min(x), hi.max(x)));
+            let v: Vec<f64> = l.field_at(0.0, 530.0, &angles).iter().map(|u| u.norm_sqr()).collect();
+            let (lo, hi) = v.iter().fold((f64::MAX, 0.0f64), |(lo, hi), &x| (lo.min(x), hi.max(x)));
             let i0 = l.field_at(0.0, 530.0, &[(0.0, 0.0)])[0].norm_sqr();
-            assert!(
-                (hi - lo) / i0 < 2e-3,
-                "r {r}: spread {} of peak",
-                (hi - lo) / i0
-            );
+            assert!((hi - lo) / i0 < 2e-3, "r {r}: spread {} of peak", (hi - lo) / i0);
         }
     }
 
     #[test]
     fn phase_coded_sharpest_channel_goes_blue_green_red() {
         let l = lens(true);
-        let sharp: Vec<usize> = [0.0, 4.0, 8.0]
-            .iter()
-            .map(|&psi| l.psf_auto(psi).sharpest_channel())
-            .collect();
-        assert_eq!(
-            sharp,
-            vec![2, 1, 0],
-            "sharpest channel (0 R, 1 G, 2 B) at psi 0, 4, 8"
-        );
+        let sharp: Vec<usize> = [0.0, 4.0, 8.0].iter().map(|&psi| l.psf_auto(psi).sharpest_channel()).collect();
+        assert_eq!(sharp, vec![2, 1, 0], "sharpest channel (0 R, 1 G, 2 B) at psi 0, 4, 8");
     }
 
     #[test]
     fn flipped_defocus_sign_breaks_the_colour_code() {
         // The convention test: with the defocus sign opposite to the mask phase, the sharpest
         // channel does not go blue -> green -> red.
-        let cfg = OpticsConfig {
-            defocus_sign: -1.0,
-            ..Default::default()
-        };
+        let cfg = OpticsConfig { defocus_sign: -1.0, ..Default::default() };
         let l = Lens::new(&cfg, true);
-        let sharp: Vec<usize> = [0.0, 4.0, 8.0]
-            .iter()
-            .map(|&psi| l.psf_auto(psi).sharpest_channel())
-            .collect();
+        let sharp: Vec<usize> = [0.0, 4.0, 8.0].iter().map(|&psi| l.psf_auto(psi).sharpest_channel()).collect();
         assert_ne!(sharp, vec![2, 1, 0]);
     }
 
@@ -492,10 +406,7 @@ mod tests {
         let p = l.psf_auto(8.0);
         let r90 = p.energy_radius(2, 0.9);
         let geo = l.geometric_radius_px(8.0);
-        assert!(
-            r90 > 0.7 * geo && r90 < 1.1 * geo,
-            "r90 {r90}, geometric {geo}"
-        );
+        assert!(r90 > 0.7 * geo && r90 < 1.1 * geo, "r90 {r90}, geometric {geo}");
     }
 
     #[test]
@@ -511,9 +422,6 @@ mod tests {
         let c_full = full.channels[1][full.half() * full.size + full.half()];
         let c_trim = t.channels[1][h * t.size + h];
         let gain = c_trim / c_full;
-        assert!(
-            gain >= 1.0 && gain <= 1.0 / (1.0 - 5e-3) + 1e-6,
-            "gain {gain}"
-        );
+        assert!(gain >= 1.0 && gain <= 1.0 / (1.0 - 5e-3) + 1e-6, "gain {gain}");
     }
 }

@@ -48,9 +48,7 @@ impl Curve {
 
     /// Table of `to_linear` for every 16-bit code value.
     pub fn decode_lut16(self) -> Vec<f32> {
-        (0..=65535u32)
-            .map(|i| self.to_linear(i as f64 / 65535.0) as f32)
-            .collect()
+        (0..=65535u32).map(|i| self.to_linear(i as f64 / 65535.0) as f32).collect()
     }
 }
 
@@ -63,12 +61,7 @@ pub struct Encoder {
 
 impl Encoder {
     pub fn new(curve: Curve) -> Encoder {
-        Encoder {
-            curve,
-            lut: (0..=65536u32)
-                .map(|i| curve.encode(i as f64 / 65536.0) as f32)
-                .collect(),
-        }
+        Encoder { curve, lut: (0..=65536u32).map(|i| curve.encode(i as f64 / 65536.0) as f32).collect() }
     }
 
     #[inline]
@@ -96,11 +89,7 @@ mod tests {
                 let v = i as f64 / 255.0;
                 let lin = c.to_linear(v);
                 assert!((c.encode(lin) - v).abs() < 1e-9, "{c:?} {i}");
-                assert!(
-                    (e.encode(lin as f32) as f64 - v).abs() < 2e-5,
-                    "{c:?} {i}: {}",
-                    e.encode(lin as f32)
-                );
+                assert!((e.encode(lin as f32) as f64 - v).abs() < 2e-5, "{c:?} {i}: {}", e.encode(lin as f32));
                 // 8-bit round trip is exact.
                 assert_eq!((e.encode(lin as f32) * 255.0).round() as i32, i);
             }

@@ -11,7 +11,7 @@ pub mod patches;
 pub mod shards;
 pub mod source;
 
-use crate::frame::{Frame, FrameData, Input, Item};
+use crate::frame::{Frame, Input, Item};
 use crate::optics::transfer::Curve;
 use crossbeam_channel::Sender;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -63,12 +63,7 @@ pub struct Emit<'a> {
 
 impl<'a> Emit<'a> {
     pub fn new(tx: &'a Sender<Item>, stop: &'a AtomicBool) -> Emit<'a> {
-        Emit {
-            tx,
-            closed: false,
-            stop,
-            waited: std::time::Duration::ZERO,
-        }
+        Emit { tx, closed: false, stop, waited: std::time::Duration::ZERO }
     }
     /// False when downstream has stopped (then the caller should return quietly).
     pub fn send(&mut self, item: Item) -> bool {
@@ -109,44 +104,20 @@ pub trait Sink: Send {
     fn failures(&self) -> Vec<(String, String)>;
 }
 
-/// `linearize`: encoded values to linear light through a table.
+/// `linearize`: marks frames as linear light through `curve`. The pixels are converted lazily,
+/// by table, where they are read ([`Frame::linear_row`]): patch mode converts only its patches.
 pub struct Linearize {
     curve: Curve,
-    lut16: Vec<f32>,
 }
 
 impl Linearize {
     pub fn new(curve: Curve) -> Linearize {
-        Linearize {
-            curve,
-            lut16: curve.decode_lut16(),
-        }
+        Linearize { curve }
     }
 
-    /// Planar linear RGB of an encoded frame.
+    /// The same pixels, tagged with the curve.
     pub fn apply(&self, f: &Frame) -> Frame {
-        let n = f.width * f.height;
-        let planes = match &f.data {
-            FrameData::Rgb48(v) => {
-                let mut p = [vec![0.0f32; n], vec![0.0f32; n], vec![0.0f32; n]];
-                for (i, px) in v.chunks_exact(3).enumerate() {
-                    p[0][i] = self.lut16[px[0] as usize];
-                    p[1][i] = self.lut16[px[1] as usize];
-                    p[2][i] = self.lut16[px[2] as usize];
-                }
-                p
-            }
-            FrameData::Planar(p) => p.clone().map(|c| {
-                c.into_iter()
-                    .map(|v| self.curve.to_linear(v as f64) as f32)
-                    .collect()
-            }),
-        };
-        Frame {
-            width: f.width,
-            height: f.height,
-            data: FrameData::Planar(planes),
-        }
+        Frame { curve: Some(self.curve), ..f.clone() }
     }
 }
 
@@ -158,16 +129,5 @@ impl Transform for Linearize {
         };
         out.send(item);
         Ok(())
-    }
-}
-
-/// Planes of a linear frame.
-///
-/// # Panics
-/// If the frame is still in the decoder's 16-bit layout (the plan puts `linearize` first).
-pub fn planes(f: &Frame) -> &[Vec<f32>; 3] {
-    match &f.data {
-        FrameData::Planar(p) => p,
-        FrameData::Rgb48(_) => panic!("frame reached a linear stage without linearize"),
     }
 }

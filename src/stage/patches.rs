@@ -16,25 +16,14 @@ pub struct Selector {
 
 impl Selector {
     pub fn new(cfg: &PatchesConfig) -> Selector {
-        Selector {
-            size: cfg.size,
-            per_window: cfg.per_window,
-            placement: cfg.placement,
-        }
+        Selector { size: cfg.size, per_window: cfg.per_window, placement: cfg.placement }
     }
 
     /// Top-left corners of the patches of one window.
     ///
     /// # Errors
     /// The frame is smaller than a patch.
-    pub fn positions(
-        &self,
-        seed: u64,
-        input: usize,
-        window: u64,
-        w: usize,
-        h: usize,
-    ) -> Result<Vec<(usize, usize)>, String> {
+    pub fn positions(&self, seed: u64, input: usize, window: u64, w: usize, h: usize) -> Result<Vec<(usize, usize)>, String> {
         let s = self.size;
         if w < s || h < s {
             return Err(format!("frames are {w}x{h}, smaller than a {s}x{s} patch"));
@@ -42,9 +31,7 @@ impl Selector {
         Ok(match self.placement {
             Placement::Random => {
                 let mut rng = Rng::new(hash(&[seed, input as u64, window, hash_str("patches")]));
-                (0..self.per_window)
-                    .map(|_| (rng.below(w - s + 1), rng.below(h - s + 1)))
-                    .collect()
+                (0..self.per_window).map(|_| (rng.below(w - s + 1), rng.below(h - s + 1))).collect()
             }
             Placement::Grid => {
                 let (nx, ny) = (w / s, h / s);
@@ -63,15 +50,9 @@ impl Selector {
 fn crop_img(img: &Img, fw: usize, x: usize, y: usize, s: usize) -> Img {
     match img {
         Img::Linear(p) => Img::Linear(super::blur::crop(p, fw, x, y, s, s)),
-        Img::Encoded8(v) => Img::Encoded8(
-            (0..s)
-                .flat_map(|yy| {
-                    v[((y + yy) * fw + x) * 3..((y + yy) * fw + x + s) * 3]
-                        .iter()
-                        .copied()
-                })
-                .collect(),
-        ),
+        Img::Encoded8(v) => {
+            Img::Encoded8((0..s).flat_map(|yy| v[((y + yy) * fw + x) * 3..((y + yy) * fw + x + s) * 3].iter().copied()).collect())
+        }
     }
 }
 
@@ -91,9 +72,7 @@ impl Transform for Patches {
             let pos = self
                 .selector
                 .positions(self.seed, s.input.index, s.window, full.w, full.h)
-                .map_err(|e| {
-                    StageError::Input(s.input.clone(), format!("{}: {e}", s.input.path))
-                })?;
+                .map_err(|e| StageError::Input(s.input.clone(), format!("{}: {e}", s.input.path)))?;
             let sz = self.selector.size;
             s.pairs = pos
                 .into_iter()

@@ -75,13 +75,7 @@ fn meta_json(s: &Sample, p: &Pair) -> Vec<u8> {
         curve: s.curve.name(),
         sigma: s.sigma,
         frame_size: [s.frame_width, s.frame_height],
-        patch: p.patch.map(|index| PatchMeta {
-            index,
-            x: p.x,
-            y: p.y,
-            w: p.w,
-            h: p.h,
-        }),
+        patch: p.patch.map(|index| PatchMeta { index, x: p.x, y: p.y, w: p.w, h: p.h }),
     };
     serde_json::to_vec(&m).expect("json")
 }
@@ -133,9 +127,9 @@ impl Manifest {
     pub fn load(dir: &Path, name: &str) -> crate::Result<Option<Manifest>> {
         let p = dir.join(name);
         match std::fs::read(&p) {
-            Ok(b) => serde_json::from_slice(&b).map(Some).map_err(|e| {
-                crate::Error::Invalid(format!("{}: not a pipeline manifest ({e})", p.display()))
-            }),
+            Ok(b) => serde_json::from_slice(&b)
+                .map(Some)
+                .map_err(|e| crate::Error::Invalid(format!("{}: not a pipeline manifest ({e})", p.display()))),
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
             Err(e) => Err(crate::Error::Io { path: p, source: e }),
         }
@@ -179,84 +173,35 @@ impl Shards {
         manifest_name: String,
         counters: Arc<Counters>,
     ) -> Shards {
-        Shards {
-            dir,
-            prefix,
-            max_per_shard,
-            manifest,
-            manifest_name,
-            counters,
-            failed: Vec::new(),
-            cur: None,
-        }
+        Shards { dir, prefix, max_per_shard, manifest, manifest_name, counters, failed: Vec::new(), cur: None }
     }
 
     fn io(&self, p: &Path, e: std::io::Error) -> crate::Error {
-        crate::Error::Io {
-            path: p.to_path_buf(),
-            source: e,
-        }
+        crate::Error::Io { path: p.to_path_buf(), source: e }
     }
 
     fn write_pair(&mut self, s: &Sample, p: &Pair) -> crate::Result<()> {
         let (dir, prefix, max) = (self.dir.clone(), self.prefix.clone(), self.max_per_shard);
-        let cur = self
-            .cur
-            .as_mut()
-            .expect("a sample belongs to an open input");
+        let cur = self.cur.as_mut().expect("a sample belongs to an open input");
         if cur.open.as_ref().is_some_and(|o| o.samples >= max) {
             let mut o = cur.open.take().expect("checked");
-            tar::finish(&mut o.w)
-                .and_then(|_| o.w.flush())
-                .map_err(|e| crate::Error::Io {
-                    path: o.tmp.clone(),
-                    source: e,
-                })?;
-            cur.closed.push((
-                o.tmp,
-                ManifestShard {
-                    name: o.name,
-                    samples: o.samples,
-                },
-            ));
+            tar::finish(&mut o.w).and_then(|_| o.w.flush()).map_err(|e| crate::Error::Io { path: o.tmp.clone(), source: e })?;
+            cur.closed.push((o.tmp, ManifestShard { name: o.name, samples: o.samples }));
         }
         if cur.open.is_none() {
-            let name = format!(
-                "{prefix}-{:05}-{:04}.tar",
-                cur.input.index,
-                cur.closed.len()
-            );
+            let name = format!("{prefix}-{:05}-{:04}.tar", cur.input.index, cur.closed.len());
             let tmp = dir.join(format!(".{name}.{}.tmp", std::process::id()));
-            let f = File::create(&tmp).map_err(|e| crate::Error::Io {
-                path: tmp.clone(),
-                source: e,
-            })?;
-            cur.open = Some(OpenShard {
-                tmp,
-                name,
-                w: BufWriter::new(f),
-                samples: 0,
-            });
+            let f = File::create(&tmp).map_err(|e| crate::Error::Io { path: tmp.clone(), source: e })?;
+            cur.open = Some(OpenShard { tmp, name, w: BufWriter::new(f), samples: 0 });
         }
         let o = cur.open.as_mut().expect("opened");
         let key = sample_key(s, p);
         let res = (|| {
-            tar::append(
-                &mut o.w,
-                &format!("{key}.lq.png"),
-                &png_bytes(&p.lq, p.w, p.h, s.curve),
-            )?;
-            tar::append(
-                &mut o.w,
-                &format!("{key}.gt.png"),
-                &png_bytes(&p.gt, p.w, p.h, s.curve),
-            )?;
+            tar::append(&mut o.w, &format!("{key}.lq.png"), &png_bytes(&p.lq, p.w, p.h, s.curve))?;
+            tar::append(&mut o.w, &format!("{key}.gt.png"), &png_bytes(&p.gt, p.w, p.h, s.curve))?;
             tar::append(&mut o.w, &format!("{key}.json"), &meta_json(s, p))
         })();
-        res.map_err(|e| crate::Error::Io {
-            path: o.tmp.clone(),
-            source: e,
-        })?;
+        res.map_err(|e| crate::Error::Io { path: o.tmp.clone(), source: e })?;
         o.samples += 1;
         cur.samples += 1;
         Ok(())
@@ -279,21 +224,10 @@ impl Shards {
             return Ok(());
         };
         if let Some(mut o) = cur.open.take() {
-            tar::finish(&mut o.w)
-                .and_then(|_| o.w.flush())
-                .map_err(|e| self.io(&o.tmp, e))?;
-            let f = o.w.into_inner().map_err(|e| crate::Error::Io {
-                path: o.tmp.clone(),
-                source: e.into_error(),
-            })?;
+            tar::finish(&mut o.w).and_then(|_| o.w.flush()).map_err(|e| self.io(&o.tmp, e))?;
+            let f = o.w.into_inner().map_err(|e| crate::Error::Io { path: o.tmp.clone(), source: e.into_error() })?;
             f.sync_all().map_err(|e| self.io(&o.tmp, e))?;
-            cur.closed.push((
-                o.tmp,
-                ManifestShard {
-                    name: o.name,
-                    samples: o.samples,
-                },
-            ));
+            cur.closed.push((o.tmp, ManifestShard { name: o.name, samples: o.samples }));
         }
         let mut shards = Vec::new();
         for (tmp, sh) in cur.closed {
@@ -327,15 +261,7 @@ impl Sink for Shards {
         match item {
             Item::Begin(input, info) => {
                 self.discard();
-                self.cur = Some(Current {
-                    input,
-                    info,
-                    frames: 0,
-                    windows: 0,
-                    samples: 0,
-                    open: None,
-                    closed: Vec::new(),
-                });
+                self.cur = Some(Current { input, info, frames: 0, windows: 0, samples: 0, open: None, closed: Vec::new() });
             }
             Item::Frame(..) => {}
             Item::Sample(s) => {
@@ -396,14 +322,7 @@ pub struct Frames {
 
 impl Frames {
     pub fn new(dir: PathBuf, format: ImageFormat, counters: Arc<Counters>) -> Frames {
-        Frames {
-            dir,
-            format,
-            counters,
-            failed: Vec::new(),
-            written: Vec::new(),
-            samples: 0,
-        }
+        Frames { dir, format, counters, failed: Vec::new(), written: Vec::new(), samples: 0 }
     }
 
     fn write(&mut self, s: &Sample, p: &Pair) -> crate::Result<()> {
@@ -418,10 +337,7 @@ impl Frames {
         };
         for (sub, img) in [(lq_dir, &p.lq), (gt_dir, &p.gt)] {
             let d = base.join(sub);
-            std::fs::create_dir_all(&d).map_err(|e| crate::Error::Io {
-                path: d.clone(),
-                source: e,
-            })?;
+            std::fs::create_dir_all(&d).map_err(|e| crate::Error::Io { path: d.clone(), source: e })?;
             let path = d.join(format!("{name}.{ext}"));
             match self.format {
                 ImageFormat::Png => {
@@ -431,15 +347,11 @@ impl Frames {
                 ImageFormat::Exr => {
                     let lin: [Vec<f32>; 3] = match img {
                         Img::Linear(l) => l.clone(),
-                        Img::Encoded8(v) => std::array::from_fn(|c| {
-                            (0..p.w * p.h)
-                                .map(|i| s.curve.to_linear(v[i * 3 + c] as f64 / 255.0) as f32)
-                                .collect()
-                        }),
+                        Img::Encoded8(v) => {
+                            std::array::from_fn(|c| (0..p.w * p.h).map(|i| s.curve.to_linear(v[i * 3 + c] as f64 / 255.0) as f32).collect())
+                        }
                     };
-                    write_atomic(&path, |w| {
-                        exr::write_rgb_f32(w, p.w, p.h, [&lin[0], &lin[1], &lin[2]])
-                    })?;
+                    write_atomic(&path, |w| exr::write_rgb_f32(w, p.w, p.h, [&lin[0], &lin[1], &lin[2]]))?;
                 }
             }
             self.written.push(path);
@@ -490,8 +402,37 @@ impl Sink for Frames {
 
 /// Inputs a manifest lists as complete, by path.
 pub fn completed(manifest: &Option<Manifest>) -> BTreeMap<String, usize> {
-    manifest
-        .iter()
-        .flat_map(|m| m.inputs.iter().map(|i| (i.path.clone(), i.samples)))
-        .collect()
+    manifest.iter().flat_map(|m| m.inputs.iter().map(|i| (i.path.clone(), i.samples))).collect()
+}
+
+/// `blackhole`: counts what arrives and keeps nothing.
+pub struct Blackhole {
+    pub counters: Arc<Counters>,
+    pub samples: usize,
+    pub failed: Vec<(String, String)>,
+}
+
+impl Sink for Blackhole {
+    fn consume(&mut self, item: Item) -> crate::Result<()> {
+        match item {
+            Item::Sample(s) => {
+                self.samples += s.pairs.len();
+                Counters::add(&self.counters.samples, s.pairs.len() as u64);
+            }
+            Item::End(_, Ok(())) => Counters::add(&self.counters.inputs_done, 1),
+            Item::End(input, Err(e)) => {
+                self.failed.push((input.path.clone(), e));
+                Counters::add(&self.counters.inputs_failed, 1);
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+    fn finish(&mut self) -> crate::Result<serde_json::Value> {
+        Ok(serde_json::json!({ "sink": "blackhole", "samples": self.samples }))
+    }
+    fn abort(&mut self) {}
+    fn failures(&self) -> Vec<(String, String)> {
+        self.failed.clone()
+    }
 }

@@ -12,21 +12,8 @@ use std::sync::Arc;
 /// A WebDataset-safe key for an input: its file stem with anything but letters, digits, '-'
 /// and '_' replaced, plus its index so that equal stems in different folders stay apart.
 pub fn input_key(index: usize, path: &str) -> String {
-    let stem = std::path::Path::new(path)
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let clean: String = stem
-        .chars()
-        .take(40)
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || c == '-' {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect();
+    let stem = std::path::Path::new(path).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let clean: String = stem.chars().take(40).map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' }).collect();
     format!("{clean}_{index:05}")
 }
 
@@ -40,17 +27,11 @@ pub struct Needs {
 
 fn check_size(info: &InputInfo, needs: &Needs) -> Result<(), String> {
     if info.width < needs.width || info.height < needs.height {
-        return Err(format!(
-            "frames are {}x{}, smaller than a {}x{} patch",
-            info.width, info.height, needs.width, needs.height
-        ));
+        return Err(format!("frames are {}x{}, smaller than a {}x{} patch", info.width, info.height, needs.width, needs.height));
     }
     if let Some(n) = info.frames_announced {
         if n < needs.frames {
-            return Err(format!(
-                "{n} frames, shorter than one window of {}",
-                needs.frames
-            ));
+            return Err(format!("{n} frames, shorter than one window of {}", needs.frames));
         }
     }
     Ok(())
@@ -69,8 +50,7 @@ impl Source for Decode {
     fn run(&mut self, out: &mut Emit) -> crate::Result<()> {
         use crate::io::video::VideoReader;
         for (input, path) in &self.inputs {
-            let fail =
-                |msg: String| Item::End(input.clone(), Err(format!("{}: {msg}", path.display())));
+            let fail = |msg: String| Item::End(input.clone(), Err(format!("{}: {msg}", path.display())));
             let mut reader = match VideoReader::open(path) {
                 Ok(r) => r,
                 Err(e) => {
@@ -106,11 +86,7 @@ impl Source for Decode {
                         n += 1;
                     }
                     Ok(None) => match reader.info.frames_announced {
-                        Some(a) if n < a => {
-                            break Err(format!(
-                                "truncated: decoded {n} of the {a} frames the container announces"
-                            ))
-                        }
+                        Some(a) if n < a => break Err(format!("truncated: decoded {n} of the {a} frames the container announces")),
                         _ => break Ok(()),
                     },
                     Err(e) => break Err(e),
@@ -146,12 +122,7 @@ pub fn procedural_texture(w: usize, h: usize, seed: u64) -> [Vec<f32>; 3] {
     let gratings: Vec<(f64, f64, f64, [f64; 3])> = (0..4)
         .map(|_| {
             let (ang, per) = (rng.range(0.0, std::f64::consts::PI), rng.range(6.0, 40.0));
-            (
-                ang,
-                per,
-                rng.range(0.0, 6.3),
-                std::array::from_fn(|_| rng.range(-0.12, 0.12)),
-            )
+            (ang, per, rng.range(0.0, 6.3), std::array::from_fn(|_| rng.range(-0.12, 0.12)))
         })
         .collect();
     for y in 0..h {
@@ -159,9 +130,7 @@ pub fn procedural_texture(w: usize, h: usize, seed: u64) -> [Vec<f32>; 3] {
             for c in 0..3 {
                 let mut v = base[c];
                 for (ang, per, ph, amp) in &gratings {
-                    let t = (x as f64 * ang.cos() + y as f64 * ang.sin()) * std::f64::consts::TAU
-                        / per
-                        + ph;
+                    let t = (x as f64 * ang.cos() + y as f64 * ang.sin()) * std::f64::consts::TAU / per + ph;
                     v += amp[c] * t.sin();
                 }
                 p[c][y * w + x] = v as f32;
@@ -197,8 +166,7 @@ pub fn procedural_texture(w: usize, h: usize, seed: u64) -> [Vec<f32>; 3] {
 /// Reads a PNG into planar encoded values in [0, 1].
 fn read_png(path: &std::path::Path) -> Result<(usize, usize, [Vec<f32>; 3]), String> {
     let bytes = std::fs::read(path).map_err(|e| e.to_string())?;
-    let (w, h, rgb) =
-        crate::io::png::read_rgb8(&bytes).map_err(|e| format!("not a readable PNG ({e})"))?;
+    let (w, h, rgb) = crate::io::png::read_rgb8(&bytes).map_err(|e| format!("not a readable PNG ({e})"))?;
     let p = std::array::from_fn(|c| (0..w * h).map(|i| rgb[i * 3 + c] as f32 / 255.0).collect());
     Ok((w, h, p))
 }
@@ -225,69 +193,44 @@ impl Stills {
     pub fn render(&self, input: &Input, image: &(usize, usize, [Vec<f32>; 3])) -> Vec<Frame> {
         let (iw, ih, img) = image;
         let (iw, ih) = (*iw, *ih);
-        let w = if self.cfg.size[0] == 0 {
-            iw
-        } else {
-            self.cfg.size[0].min(iw)
-        };
-        let h = if self.cfg.size[1] == 0 {
-            ih
-        } else {
-            self.cfg.size[1].min(ih)
-        };
+        let w = if self.cfg.size[0] == 0 { iw } else { self.cfg.size[0].min(iw) };
+        let h = if self.cfg.size[1] == 0 { ih } else { self.cfg.size[1].min(ih) };
         let off = ((iw - w) as f64 / 2.0, (ih - h) as f64 / 2.0);
         let mut rng = Rng::new(hash(&[self.seed, input.index as u64, hash_str("stills")]));
         let layers: Vec<Layer> = (0..self.cfg.layers)
             .map(|_| {
-                let (lw, lh) = (
-                    rng.range(0.2, 0.45) * w as f64,
-                    rng.range(0.2, 0.45) * h as f64,
-                );
+                let (lw, lh) = (rng.range(0.2, 0.45) * w as f64, rng.range(0.2, 0.45) * h as f64);
                 let ang = rng.range(0.0, std::f64::consts::TAU);
                 let speed = rng.range(0.3, 1.0) * self.cfg.layer_speed_px;
                 Layer {
                     w: lw,
                     h: lh,
-                    src: (
-                        rng.range(0.0, iw as f64 - lw),
-                        rng.range(0.0, ih as f64 - lh),
-                    ),
+                    src: (rng.range(0.0, iw as f64 - lw), rng.range(0.0, ih as f64 - lh)),
                     pos: (rng.range(0.0, w as f64 - lw), rng.range(0.0, h as f64 - lh)),
                     vel: (speed * ang.cos(), speed * ang.sin()),
                 }
             })
             .collect();
-        let (mut cam, mut vel) = (
-            (0.0f64, 0.0f64),
-            (
-                rng.normal() * self.cfg.shake_px * 2.0,
-                rng.normal() * self.cfg.shake_px * 2.0,
-            ),
-        );
+        let (mut cam, mut vel) = ((0.0f64, 0.0f64), (rng.normal() * self.cfg.shake_px * 2.0, rng.normal() * self.cfg.shake_px * 2.0));
         let mut frames = Vec::with_capacity(self.cfg.frames as usize);
         for f in 0..self.cfg.frames {
             let mut planes: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0f32; w * h]);
             for y in 0..h {
                 for x in 0..w {
-                    let (sx, sy) = (
-                        x as f64 + 0.5 + off.0 + cam.0 - 0.5,
-                        y as f64 + 0.5 + off.1 + cam.1 - 0.5,
-                    );
+                    let (sx, sy) = (x as f64 + 0.5 + off.0 + cam.0 - 0.5, y as f64 + 0.5 + off.1 + cam.1 - 0.5);
                     let mut px: [f32; 3] = std::array::from_fn(|c| sample(&img[c], iw, ih, sx, sy));
                     for l in &layers {
                         // Layer-local coordinates; the layer moves with its velocity and the camera.
                         let u = x as f64 + 0.5 - (l.pos.0 + l.vel.0 * f as f64 - cam.0);
                         let v = y as f64 + 0.5 - (l.pos.1 + l.vel.1 * f as f64 - cam.1);
-                        let (nx, ny) =
-                            ((u - l.w / 2.0) / (l.w / 2.0), (v - l.h / 2.0) / (l.h / 2.0));
+                        let (nx, ny) = ((u - l.w / 2.0) / (l.w / 2.0), (v - l.h / 2.0) / (l.h / 2.0));
                         let r = (nx * nx + ny * ny).sqrt();
                         // Anti-aliased ellipse edge, about one pixel wide.
                         let edge = (l.w.min(l.h) / 2.0).max(1.0);
                         let alpha = ((1.0 - r) * edge + 0.5).clamp(0.0, 1.0) as f32;
                         if alpha > 0.0 {
                             for c in 0..3 {
-                                let s =
-                                    sample(&img[c], iw, ih, l.src.0 + u - 0.5, l.src.1 + v - 0.5);
+                                let s = sample(&img[c], iw, ih, l.src.0 + u - 0.5, l.src.1 + v - 0.5);
                                 px[c] = px[c] * (1.0 - alpha) + s * alpha;
                             }
                         }
@@ -297,15 +240,8 @@ impl Stills {
                     }
                 }
             }
-            frames.push(Frame {
-                width: w,
-                height: h,
-                data: FrameData::Planar(planes),
-            });
-            vel = (
-                vel.0 + rng.normal() * self.cfg.shake_px,
-                vel.1 + rng.normal() * self.cfg.shake_px,
-            );
+            frames.push(Frame::new(w, h, FrameData::Planar(planes)));
+            vel = (vel.0 + rng.normal() * self.cfg.shake_px, vel.1 + rng.normal() * self.cfg.shake_px);
             cam = (cam.0 + vel.0, cam.1 + vel.1);
         }
         frames
@@ -319,10 +255,7 @@ impl Source for Stills {
                 Some(p) => match read_png(p) {
                     Ok(i) => i,
                     Err(e) => {
-                        if !out.send(Item::End(
-                            input.clone(),
-                            Err(format!("{}: {e}", p.display())),
-                        )) {
+                        if !out.send(Item::End(input.clone(), Err(format!("{}: {e}", p.display())))) {
                             return Ok(());
                         }
                         continue;
@@ -330,15 +263,7 @@ impl Source for Stills {
                 },
                 None => {
                     let (w, h) = (self.cfg.size[0] + 64, self.cfg.size[1] + 64);
-                    (
-                        w,
-                        h,
-                        procedural_texture(
-                            w,
-                            h,
-                            hash(&[self.seed, input.index as u64, hash_str("texture")]),
-                        ),
-                    )
+                    (w, h, procedural_texture(w, h, hash(&[self.seed, input.index as u64, hash_str("texture")])))
                 }
             };
             let frames = self.render(input, &image);
@@ -351,10 +276,7 @@ impl Source for Stills {
                 pixel_format: "rgbf32".into(),
             };
             if let Err(e) = check_size(&info, &self.needs) {
-                if !out.send(Item::End(
-                    input.clone(),
-                    Err(format!("{}: {e}", input.path)),
-                )) {
+                if !out.send(Item::End(input.clone(), Err(format!("{}: {e}", input.path)))) {
                     return Ok(());
                 }
                 continue;
@@ -386,26 +308,17 @@ mod tests {
     #[test]
     fn stills_are_reproducible_and_move() {
         let s = Stills {
-            cfg: StillsConfig {
-                size: [64, 48],
-                frames: 5,
-                layers: 2,
-                ..Default::default()
-            },
+            cfg: StillsConfig { size: [64, 48], frames: 5, layers: 2, ..Default::default() },
             seed: 9,
             inputs: vec![],
             needs: Needs::default(),
             counters: Arc::default(),
         };
-        let input = Input {
-            index: 0,
-            path: "procedural:0".into(),
-            key: "procedural_00000".into(),
-        };
+        let input = Input { index: 0, path: "procedural:0".into(), key: "procedural_00000".into() };
         let img = (128, 112, procedural_texture(128, 112, 1));
         let a = s.render(&input, &img);
         let b = s.render(&input, &img);
-        let px = |f: &Frame| match &f.data {
+        let px = |f: &Frame| match &*f.data {
             FrameData::Planar(p) => p[1].clone(),
             _ => unreachable!(),
         };

@@ -4,10 +4,7 @@
 use crate::common::*;
 
 fn no_shards(dir: &std::path::Path) {
-    let left: Vec<String> = files(dir)
-        .into_iter()
-        .filter(|f| f.ends_with(".tar") || f.ends_with(".tmp"))
-        .collect();
+    let left: Vec<String> = files(dir).into_iter().filter(|f| f.ends_with(".tar") || f.ends_with(".tmp")).collect();
     assert!(left.is_empty(), "left behind: {left:?}");
 }
 
@@ -27,34 +24,8 @@ fn bad_videos_fail_their_input_and_name_the_file() {
     let full = std::fs::read(FIXTURE).unwrap();
     let truncated = d.join("truncated.mp4");
     std::fs::write(&truncated, &full[..full.len() / 2]).unwrap();
-    let short = clip(
-        "short.mp4",
-        &[
-            "-i",
-            FIXTURE,
-            "-frames:v",
-            "5",
-            "-c:v",
-            "libx264",
-            "-preset",
-            "ultrafast",
-        ],
-    );
-    let small = clip(
-        "small.mp4",
-        &[
-            "-i",
-            FIXTURE,
-            "-frames:v",
-            "18",
-            "-vf",
-            "scale=96:64",
-            "-c:v",
-            "libx264",
-            "-preset",
-            "ultrafast",
-        ],
-    );
+    let short = clip("short.mp4", &["-i", FIXTURE, "-frames:v", "5", "-c:v", "libx264", "-preset", "ultrafast"]);
+    let small = clip("small.mp4", &["-i", FIXTURE, "-frames:v", "18", "-vf", "scale=96:64", "-c:v", "libx264", "-preset", "ultrafast"]);
     for (path, what) in [
         (missing.clone(), "no such file"),
         (text.clone(), "not a readable video"),
@@ -68,22 +39,14 @@ fn bad_videos_fail_their_input_and_name_the_file() {
         fails_naming(&o, what);
         assert_eq!(o.status.code(), Some(1));
         no_shards(&out);
-        let r: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+        let r: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
         assert_eq!(r["inputs_failed"].as_array().unwrap().len(), 1);
     }
     // A bad input next to a good one: the good one is written, the run still exits 1.
     let out = scratch("bad_videos_mixed");
-    let o = generate(
-        &out,
-        &[text.to_str().unwrap(), FIXTURE],
-        &["sources.video.max_frames=18"],
-    );
+    let o = generate(&out, &[text.to_str().unwrap(), FIXTURE], &["sources.video.max_frames=18"]);
     assert_eq!(o.status.code(), Some(1));
-    assert_eq!(
-        files(&out).iter().filter(|f| f.ends_with(".tar")).count(),
-        1
-    );
+    assert_eq!(files(&out).iter().filter(|f| f.ends_with(".tar")).count(), 1);
 }
 
 #[test]
@@ -92,11 +55,7 @@ fn config_errors_name_the_key_and_write_nothing() {
     let o = generate(&out, &[FIXTURE], &["transforms.blur.windw=9"]);
     fails_naming(&o, "windw");
     assert_eq!(o.status.code(), Some(2));
-    let o = generate(
-        &out,
-        &[FIXTURE],
-        &["transforms.noise.sigma=300", "transforms.blur.window=0"],
-    );
+    let o = generate(&out, &[FIXTURE], &["transforms.noise.sigma=300", "transforms.blur.window=0"]);
     fails_naming(&o, "transforms.noise.sigma");
     fails_naming(&o, "transforms.blur.window");
     assert_eq!(o.status.code(), Some(2));
@@ -116,33 +75,21 @@ fn an_unwritable_output_folder_is_named() {
 #[test]
 fn every_shipped_pipeline_validates() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("pipelines");
-    let tomls: Vec<String> = files(&dir)
-        .into_iter()
-        .filter(|f| f.ends_with(".toml") && f != "optics.toml")
-        .collect();
+    let tomls: Vec<String> = files(&dir).into_iter().filter(|f| f.ends_with(".toml") && f != "optics.toml").collect();
     assert!(tomls.len() >= 2, "{tomls:?}");
     for t in tomls {
         let o = run(&["validate", dir.join(&t).to_str().unwrap()]);
-        assert!(
-            o.status.success(),
-            "{t}: {}",
-            String::from_utf8_lossy(&o.stdout)
-        );
+        assert!(o.status.success(), "{t}: {}", String::from_utf8_lossy(&o.stdout));
     }
     let d = scratch("validate_bad");
     let bad = d.join("bad.toml");
     std::fs::write(
         &bad,
-        pipeline::cli::GENERATE_TOML
-            .replace("inputs = [\"linear\"]", "inputs = [\"linaer\"]")
-            .replace("size = 128", "size = 2"),
+        pipeline::cli::GENERATE_TOML.replace("inputs = [\"linear\"]", "inputs = [\"linaer\"]").replace("size = 128", "size = 2"),
     )
     .unwrap();
     let o = run(&["validate", bad.to_str().unwrap()]);
     let out = String::from_utf8_lossy(&o.stdout);
     assert_eq!(o.status.code(), Some(2));
-    assert!(
-        out.contains("did you mean \"linear\"") && out.contains("transforms.patches.size"),
-        "all errors in one pass: {out}"
-    );
+    assert!(out.contains("did you mean \"linear\"") && out.contains("transforms.patches.size"), "all errors in one pass: {out}");
 }

@@ -25,26 +25,16 @@ pub fn stderr(o: &Output) -> String {
 
 /// Files in a folder, sorted.
 pub fn files(dir: &Path) -> Vec<String> {
-    let mut v: Vec<String> = std::fs::read_dir(dir)
-        .unwrap()
-        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-        .collect();
+    let mut v: Vec<String> = std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
     v.sort();
     v
 }
 
-pub const FIXTURE: &str = concat!(
-    env!("CARGO_MANIFEST_DIR"),
-    "/fixtures/mandelbrot-pan-240fps.mp4"
-);
+pub const FIXTURE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/mandelbrot-pan-240fps.mp4");
 
 /// Runs the ffmpeg CLI (installed by .ci/setup.sh) to make a test clip.
 pub fn ffmpeg(args: &[&str]) {
-    let st = Command::new("ffmpeg")
-        .args(["-v", "error", "-y"])
-        .args(args)
-        .status()
-        .expect("ffmpeg CLI (installed by .ci/setup.sh)");
+    let st = Command::new("ffmpeg").args(["-v", "error", "-y"]).args(args).status().expect("ffmpeg CLI (installed by .ci/setup.sh)");
     assert!(st.success(), "ffmpeg {args:?}");
 }
 
@@ -73,11 +63,7 @@ pub fn shard_members(dir: &Path) -> Vec<(String, Vec<u8>)> {
 
 pub fn generate(out: &Path, inputs: &[&str], sets: &[&str]) -> Output {
     let mut c = bin();
-    c.arg("generate")
-        .args(inputs)
-        .arg("-o")
-        .arg(out)
-        .args(["--progress", "never"]);
+    c.arg("generate").args(inputs).arg("-o").arg(out).args(["--progress", "never"]);
     for s in sets {
         c.args(["--set", s]);
     }

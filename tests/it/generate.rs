@@ -7,50 +7,24 @@ use std::collections::BTreeMap;
 const SHORT: &str = "sources.video.max_frames=27";
 
 fn ok(o: &std::process::Output) {
-    assert!(
-        o.status.success(),
-        "exit {:?}: {}",
-        o.status.code(),
-        stderr(o)
-    );
+    assert!(o.status.success(), "exit {:?}: {}", o.status.code(), stderr(o));
 }
 
 #[test]
 fn same_seed_gives_identical_shards_and_another_seed_other_noise() {
-    let (a, b, c) = (
-        scratch("gen_seed_a"),
-        scratch("gen_seed_b"),
-        scratch("gen_seed_c"),
-    );
+    let (a, b, c) = (scratch("gen_seed_a"), scratch("gen_seed_b"), scratch("gen_seed_c"));
     ok(&generate(&a, &[FIXTURE], &[SHORT, "seed=5"]));
     ok(&generate(&b, &[FIXTURE], &[SHORT, "seed=5"]));
-    ok(&generate(
-        &c,
-        &[FIXTURE],
-        &[SHORT, "seed=6", "transforms.patches.placement=\"grid\""],
-    ));
-    let tars: Vec<String> = files(&a)
-        .into_iter()
-        .filter(|f| f.ends_with(".tar"))
-        .collect();
+    ok(&generate(&c, &[FIXTURE], &[SHORT, "seed=6", "transforms.patches.placement=\"grid\""]));
+    let tars: Vec<String> = files(&a).into_iter().filter(|f| f.ends_with(".tar")).collect();
     assert!(!tars.is_empty());
     for t in &tars {
-        assert!(
-            std::fs::read(a.join(t)).unwrap() == std::fs::read(b.join(t)).unwrap(),
-            "{t} differs between runs"
-        );
+        assert!(std::fs::read(a.join(t)).unwrap() == std::fs::read(b.join(t)).unwrap(), "{t} differs between runs");
     }
-    assert!(
-        std::fs::read(a.join("manifest.json")).unwrap()
-            == std::fs::read(b.join("manifest.json")).unwrap()
-    );
+    assert!(std::fs::read(a.join("manifest.json")).unwrap() == std::fs::read(b.join("manifest.json")).unwrap());
     // Seed 6 on a grid: the same patch positions as each other; compare with seed 7 on a grid.
     let d = scratch("gen_seed_d");
-    ok(&generate(
-        &d,
-        &[FIXTURE],
-        &[SHORT, "seed=7", "transforms.patches.placement=\"grid\""],
-    ));
+    ok(&generate(&d, &[FIXTURE], &[SHORT, "seed=7", "transforms.patches.placement=\"grid\""]));
     let (mc, md) = (shard_members(&c), shard_members(&d));
     assert_eq!(mc.len(), md.len());
     let mut lq_differs = false;
@@ -69,20 +43,9 @@ fn same_seed_gives_identical_shards_and_another_seed_other_noise() {
 #[test]
 fn shards_read_as_webdataset_samples_of_128px_pngs() {
     let d = scratch("gen_wds");
-    ok(&generate(
-        &d,
-        &[FIXTURE],
-        &[SHORT, "sinks.shards.max_samples_per_shard=10"],
-    ));
-    let tars: Vec<String> = files(&d)
-        .into_iter()
-        .filter(|f| f.ends_with(".tar"))
-        .collect();
-    assert_eq!(
-        tars.len(),
-        3,
-        "24 samples rotated at 10 per shard: {tars:?}"
-    );
+    ok(&generate(&d, &[FIXTURE], &[SHORT, "sinks.shards.max_samples_per_shard=10"]));
+    let tars: Vec<String> = files(&d).into_iter().filter(|f| f.ends_with(".tar")).collect();
+    assert_eq!(tars.len(), 3, "24 samples rotated at 10 per shard: {tars:?}");
     assert!(tars.iter().all(|t| t.starts_with("train-00000-")));
     // WebDataset grouping: members sharing the part of the name before the first dot are one
     // sample and stand next to each other.
@@ -112,15 +75,10 @@ fn shards_read_as_webdataset_samples_of_128px_pngs() {
     for (_, exts) in &samples {
         assert_eq!(exts, &["lq.png", "gt.png", "json"]);
     }
-    let m: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(d.join("manifest.json")).unwrap()).unwrap();
+    let m: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join("manifest.json")).unwrap()).unwrap();
     assert_eq!(m["samples"], 24);
-    let r: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(d.join("report.json")).unwrap()).unwrap();
-    assert_eq!(
-        (r["frames"].as_u64(), r["windows"].as_u64()),
-        (Some(27), Some(3))
-    );
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join("report.json")).unwrap()).unwrap();
+    assert_eq!((r["frames"].as_u64(), r["windows"].as_u64()), (Some(27), Some(3)));
     assert!(r["stages"].as_array().unwrap().len() == 6);
 }
 
@@ -152,84 +110,23 @@ fn crop_then_blur_matches_blur_then_crop_to_one_level() {
     // The float images agree to 2e-5 (unit test); after 8-bit rounding a value that sits on a
     // rounding boundary can land one level apart, since the FFT sizes differ.
     let (a, b) = (scratch("gen_crop_a"), scratch("gen_crop_b"));
-    ok(&generate(
-        &a,
-        &[FIXTURE],
-        &[
-            SHORT,
-            "transforms.patches.crop_first=true",
-            "transforms.noise.sigma=0.0",
-        ],
-    ));
-    ok(&generate(
-        &b,
-        &[FIXTURE],
-        &[
-            SHORT,
-            "transforms.patches.crop_first=false",
-            "transforms.noise.sigma=0.0",
-        ],
-    ));
+    ok(&generate(&a, &[FIXTURE], &[SHORT, "transforms.patches.crop_first=true", "transforms.noise.sigma=0.0"]));
+    ok(&generate(&b, &[FIXTURE], &[SHORT, "transforms.patches.crop_first=false", "transforms.noise.sigma=0.0"]));
     let (n, diff, worst) = png_diff(&shard_members(&a), &shard_members(&b));
-    assert!(
-        worst <= 1 && (diff as f64) < 0.01 * n as f64,
-        "{diff} of {n} values differ, by up to {worst}"
-    );
+    assert!(worst <= 1 && (diff as f64) < 0.01 * n as f64, "{diff} of {n} values differ, by up to {worst}");
     // With noise too: the noise is keyed on absolute pixel positions.
     let (c, d) = (scratch("gen_crop_c"), scratch("gen_crop_d"));
-    ok(&generate(
-        &c,
-        &[FIXTURE],
-        &[
-            SHORT,
-            "transforms.patches.crop_first=true",
-            "transforms.noise.sigma=5.0",
-        ],
-    ));
-    ok(&generate(
-        &d,
-        &[FIXTURE],
-        &[
-            SHORT,
-            "transforms.patches.crop_first=false",
-            "transforms.noise.sigma=5.0",
-        ],
-    ));
+    ok(&generate(&c, &[FIXTURE], &[SHORT, "transforms.patches.crop_first=true", "transforms.noise.sigma=5.0"]));
+    ok(&generate(&d, &[FIXTURE], &[SHORT, "transforms.patches.crop_first=false", "transforms.noise.sigma=5.0"]));
     let (n, diff, worst) = png_diff(&shard_members(&c), &shard_members(&d));
-    assert!(
-        worst <= 1 && (diff as f64) < 0.01 * n as f64,
-        "with noise: {diff} of {n} values differ, by up to {worst}"
-    );
+    assert!(worst <= 1 && (diff as f64) < 0.01 * n as f64, "with noise: {diff} of {n} values differ, by up to {worst}");
 }
 
 #[test]
 fn identical_frames_through_the_conventional_camera_give_the_frame_back() {
-    let still = clip(
-        "still.png",
-        &[
-            "-f",
-            "lavfi",
-            "-i",
-            "mandelbrot=size=160x128:start_scale=1.5:end_scale=1.5",
-            "-frames:v",
-            "1",
-        ],
-    );
-    let video = clip(
-        "still-ffv1.mkv",
-        &[
-            "-loop",
-            "1",
-            "-i",
-            still.to_str().unwrap(),
-            "-frames:v",
-            "9",
-            "-c:v",
-            "ffv1",
-            "-pix_fmt",
-            "bgr0",
-        ],
-    );
+    let still = clip("still.png", &["-f", "lavfi", "-i", "mandelbrot=size=160x128:start_scale=1.5:end_scale=1.5", "-frames:v", "1"]);
+    let video =
+        clip("still-ffv1.mkv", &["-loop", "1", "-i", still.to_str().unwrap(), "-frames:v", "9", "-c:v", "ffv1", "-pix_fmt", "bgr0"]);
     let d = scratch("gen_identity");
     ok(&generate(
         &d,
@@ -247,25 +144,12 @@ fn identical_frames_through_the_conventional_camera_give_the_frame_back() {
     for s in m.chunks(3) {
         let (_, _, lq) = pipeline::io::png::read_rgb8(&s[0].1).unwrap();
         let (_, _, gt) = pipeline::io::png::read_rgb8(&s[1].1).unwrap();
-        assert!(
-            lq == gt,
-            "{}: the average of identical frames is the frame",
-            s[0].0
-        );
+        assert!(lq == gt, "{}: the average of identical frames is the frame", s[0].0);
         // And it is the still itself, cut at the patch position.
         let meta: serde_json::Value = serde_json::from_slice(&s[2].1).unwrap();
-        let (x, y) = (
-            meta["patch"]["x"].as_u64().unwrap() as usize,
-            meta["patch"]["y"].as_u64().unwrap() as usize,
-        );
-        let want: Vec<u8> = (0..64)
-            .flat_map(|r| still_px[((y + r) * sw + x) * 3..((y + r) * sw + x + 64) * 3].to_vec())
-            .collect();
-        assert!(
-            gt == want,
-            "{}: target differs from the decoded still",
-            s[1].0
-        );
+        let (x, y) = (meta["patch"]["x"].as_u64().unwrap() as usize, meta["patch"]["y"].as_u64().unwrap() as usize);
+        let want: Vec<u8> = (0..64).flat_map(|r| still_px[((y + r) * sw + x) * 3..((y + r) * sw + x + 64) * 3].to_vec()).collect();
+        assert!(gt == want, "{}: target differs from the decoded still", s[1].0);
     }
 }
 
@@ -273,16 +157,22 @@ fn identical_frames_through_the_conventional_camera_give_the_frame_back() {
 fn ten_bit_input_is_decoded_with_its_depth() {
     let v = clip(
         "ten-bit.mkv",
-        &["-f", "lavfi", "-i", "mandelbrot=size=160x144:rate=240:start_scale=1.5:end_scale=1.5,crop=144:128:x='8*t*10':y=4", "-frames:v", "18", "-c:v", "ffv1", "-pix_fmt", "yuv444p10le"],
+        &[
+            "-f",
+            "lavfi",
+            "-i",
+            "mandelbrot=size=160x144:rate=240:start_scale=1.5:end_scale=1.5,crop=144:128:x='8*t*10':y=4",
+            "-frames:v",
+            "18",
+            "-c:v",
+            "ffv1",
+            "-pix_fmt",
+            "yuv444p10le",
+        ],
     );
     let d = scratch("gen_10bit");
-    ok(&generate(
-        &d,
-        &[v.to_str().unwrap()],
-        &["transforms.patches.per_window=2"],
-    ));
-    let r: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(d.join("report.json")).unwrap()).unwrap();
+    ok(&generate(&d, &[v.to_str().unwrap()], &["transforms.patches.per_window=2"]));
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join("report.json")).unwrap()).unwrap();
     assert_eq!(r["samples"], 4);
     let m = shard_members(&d);
     let (w, h, px) = pipeline::io::png::read_rgb8(&m[1].1).unwrap();
@@ -292,54 +182,10 @@ fn ten_bit_input_is_decoded_with_its_depth() {
 
 #[test]
 fn two_tasks_give_the_same_samples_as_one_run_and_reruns_skip_finished_inputs() {
-    let a = clip(
-        "part-a.mp4",
-        &[
-            "-i",
-            FIXTURE,
-            "-frames:v",
-            "18",
-            "-c:v",
-            "libx264",
-            "-preset",
-            "ultrafast",
-        ],
-    );
-    let b = clip(
-        "part-b.mp4",
-        &[
-            "-ss",
-            "0.5",
-            "-i",
-            FIXTURE,
-            "-frames:v",
-            "18",
-            "-c:v",
-            "libx264",
-            "-preset",
-            "ultrafast",
-        ],
-    );
-    let c = clip(
-        "part-c.mp4",
-        &[
-            "-ss",
-            "1.0",
-            "-i",
-            FIXTURE,
-            "-frames:v",
-            "18",
-            "-c:v",
-            "libx264",
-            "-preset",
-            "ultrafast",
-        ],
-    );
-    let inputs = [
-        a.to_str().unwrap(),
-        b.to_str().unwrap(),
-        c.to_str().unwrap(),
-    ];
+    let a = clip("part-a.mp4", &["-i", FIXTURE, "-frames:v", "18", "-c:v", "libx264", "-preset", "ultrafast"]);
+    let b = clip("part-b.mp4", &["-ss", "0.5", "-i", FIXTURE, "-frames:v", "18", "-c:v", "libx264", "-preset", "ultrafast"]);
+    let c = clip("part-c.mp4", &["-ss", "1.0", "-i", FIXTURE, "-frames:v", "18", "-c:v", "libx264", "-preset", "ultrafast"]);
+    let inputs = [a.to_str().unwrap(), b.to_str().unwrap(), c.to_str().unwrap()];
     let one = scratch("gen_tasks_one");
     ok(&generate(&one, &inputs, &[]));
     let split = scratch("gen_tasks_split");
@@ -347,24 +193,14 @@ fn two_tasks_give_the_same_samples_as_one_run_and_reruns_skip_finished_inputs() 
         let o = bin()
             .arg("generate")
             .args(inputs)
-            .args([
-                "-o",
-                split.to_str().unwrap(),
-                "--progress",
-                "never",
-                "--shard-index",
-                i,
-                "--shard-count",
-                "2",
-            ])
+            .args(["-o", split.to_str().unwrap(), "--progress", "never", "--shard-index", i, "--shard-count", "2"])
             .output()
             .unwrap();
         ok(&o);
     }
     let names = files(&split);
     assert!(
-        names.contains(&"manifest-00000-of-00002.json".to_string())
-            && names.contains(&"manifest-00001-of-00002.json".to_string()),
+        names.contains(&"manifest-00000-of-00002.json".to_string()) && names.contains(&"manifest-00001-of-00002.json".to_string()),
         "{names:?}"
     );
     let mut m1: BTreeMap<String, Vec<u8>> = shard_members(&one).into_iter().collect();
@@ -375,20 +211,11 @@ fn two_tasks_give_the_same_samples_as_one_run_and_reruns_skip_finished_inputs() 
         assert!(m1.remove(k).unwrap() == *v, "{k} differs");
     }
     // A rerun skips every input the manifest lists and rewrites nothing.
-    let before = std::fs::metadata(one.join("train-00001-0000.tar"))
-        .unwrap()
-        .modified()
-        .unwrap();
+    let before = std::fs::metadata(one.join("train-00001-0000.tar")).unwrap().modified().unwrap();
     let o = generate(&one, &inputs, &[]);
     ok(&o);
     assert!(stderr(&o).contains("3 skipped"), "{}", stderr(&o));
-    assert_eq!(
-        std::fs::metadata(one.join("train-00001-0000.tar"))
-            .unwrap()
-            .modified()
-            .unwrap(),
-        before
-    );
+    assert_eq!(std::fs::metadata(one.join("train-00001-0000.tar")).unwrap().modified().unwrap(), before);
     // The Slurm variables pick the task when no flag is given.
     let slurm = scratch("gen_tasks_slurm");
     let o = bin()
@@ -400,12 +227,5 @@ fn two_tasks_give_the_same_samples_as_one_run_and_reruns_skip_finished_inputs() 
         .output()
         .unwrap();
     ok(&o);
-    assert_eq!(
-        files(&slurm)
-            .iter()
-            .filter(|f| f.ends_with(".tar"))
-            .cloned()
-            .collect::<Vec<_>>(),
-        vec!["train-00001-0000.tar"]
-    );
+    assert_eq!(files(&slurm).iter().filter(|f| f.ends_with(".tar")).cloned().collect::<Vec<_>>(), vec!["train-00001-0000.tar"]);
 }

@@ -9,31 +9,19 @@ fn read_npy(p: &std::path::Path) -> (Vec<usize>, Vec<f32>) {
 
 fn channel_sum(data: &[f32], shape: &[usize], k: usize, c: usize) -> f64 {
     let (h, w) = (shape[1], shape[2]);
-    (0..h * w)
-        .map(|i| data[(k * h * w + i) * 3 + c] as f64)
-        .sum()
+    (0..h * w).map(|i| data[(k * h * w + i) * 3 + c] as f64).sum()
 }
 
 fn peak(data: &[f32], shape: &[usize], k: usize, c: usize) -> f32 {
     let (h, w) = (shape[1], shape[2]);
-    (0..h * w)
-        .map(|i| data[(k * h * w + i) * 3 + c])
-        .fold(0.0, f32::max)
+    (0..h * w).map(|i| data[(k * h * w + i) * 3 + c]).fold(0.0, f32::max)
 }
 
 #[test]
 fn npy_has_shape_k_h_w_3_and_unit_sum_channels_that_go_blue_green_red() {
     let d = scratch("psf_npy");
     let out = d.join("psfs.npy");
-    let o = run(&[
-        "psf",
-        "--camera",
-        "phase_coded",
-        "--psi",
-        "0:8:33",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let o = run(&["psf", "--camera", "phase_coded", "--psi", "0:8:33", "--out", out.to_str().unwrap()]);
     assert!(o.status.success(), "{}", stderr(&o));
     let (shape, data) = read_npy(&out);
     assert_eq!(shape.len(), 4);
@@ -45,49 +33,25 @@ fn npy_has_shape_k_h_w_3_and_unit_sum_channels_that_go_blue_green_red() {
             assert!((channel_sum(&data, &shape, k, c) - 1.0).abs() < 1e-4);
         }
     }
-    let sharpest = |k| {
-        (0..3)
-            .max_by(|&a, &b| peak(&data, &shape, k, a).total_cmp(&peak(&data, &shape, k, b)))
-            .unwrap()
-    };
+    let sharpest = |k| (0..3).max_by(|&a, &b| peak(&data, &shape, k, a).total_cmp(&peak(&data, &shape, k, b))).unwrap();
     assert_eq!((sharpest(0), sharpest(16), sharpest(32)), (2, 1, 0));
     // The table is printed too.
     let table = String::from_utf8_lossy(&o.stdout);
-    assert!(
-        table.contains("sharpest") && table.lines().count() >= 34,
-        "{table}"
-    );
+    assert!(table.contains("sharpest") && table.lines().count() >= 34, "{table}");
     assert!(table.contains("B -> G") && table.contains("G -> R"));
 }
 
 #[test]
 fn window_writes_one_kernel_per_subframe_for_every_camera() {
     let d = scratch("psf_window");
-    for cam in [
-        "conventional",
-        "focus_sweep",
-        "phase_coded",
-        "flutter",
-        "parabolic",
-    ] {
+    for cam in ["conventional", "focus_sweep", "phase_coded", "flutter", "parabolic"] {
         let out = d.join(format!("{cam}.npy"));
-        let o = run(&[
-            "psf",
-            "--camera",
-            cam,
-            "--window",
-            "9",
-            "--out",
-            out.to_str().unwrap(),
-        ]);
+        let o = run(&["psf", "--camera", cam, "--window", "9", "--out", out.to_str().unwrap()]);
         assert!(o.status.success(), "{cam}: {}", stderr(&o));
         let (shape, data) = read_npy(&out);
         assert_eq!(shape[0], 9, "{cam}");
         for k in 0..9 {
-            assert!(
-                (channel_sum(&data, &shape, k, 1) - 1.0).abs() < 1e-4,
-                "{cam} k {k}"
-            );
+            assert!((channel_sum(&data, &shape, k, 1) - 1.0).abs() < 1e-4, "{cam} k {k}");
         }
     }
 }
@@ -105,26 +69,12 @@ fn exr_decodes_with_ffmpeg_to_the_same_linear_values_as_npy() {
     // FFmpeg's own EXR decoder: planar G, B, R float32.
     let raw = d.join("p.raw");
     let st = std::process::Command::new("ffmpeg")
-        .args([
-            "-v",
-            "error",
-            "-y",
-            "-i",
-            exr.to_str().unwrap(),
-            "-f",
-            "rawvideo",
-            "-pix_fmt",
-            "gbrpf32le",
-            raw.to_str().unwrap(),
-        ])
+        .args(["-v", "error", "-y", "-i", exr.to_str().unwrap(), "-f", "rawvideo", "-pix_fmt", "gbrpf32le", raw.to_str().unwrap()])
         .status()
         .expect("ffmpeg CLI (installed by .ci/setup.sh)");
     assert!(st.success());
     let bytes = std::fs::read(&raw).unwrap();
-    let vals: Vec<f32> = bytes
-        .chunks_exact(4)
-        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect();
+    let vals: Vec<f32> = bytes.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
     let (w, h) = (n * k, n);
     assert_eq!(vals.len(), 3 * w * h);
     let plane = |c: usize| &vals[c * w * h..(c + 1) * w * h];
@@ -180,10 +130,7 @@ fn wrong_flag_values_are_one_line_errors_naming_the_flag() {
         let o = run(&args);
         assert_eq!(o.status.code(), Some(2), "{args:?}");
         let first = stderr(&o).lines().next().unwrap_or("").to_string();
-        assert!(
-            first.starts_with("error:") && first.contains(flag),
-            "{args:?}: {first}"
-        );
+        assert!(first.starts_with("error:") && first.contains(flag), "{args:?}: {first}");
     }
 }
 
@@ -193,38 +140,15 @@ fn config_typos_and_bad_values_name_the_key_and_write_nothing() {
     let out = d.join("p.npy");
     let typo = d.join("typo.toml");
     std::fs::write(&typo, "[optics]\nairy_radius = 3.0\n").unwrap();
-    let o = run(&[
-        "psf",
-        "--config",
-        typo.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let o = run(&["psf", "--config", typo.to_str().unwrap(), "--out", out.to_str().unwrap()]);
     assert!(!o.status.success());
-    assert!(
-        stderr(&o).contains("airy_radius") && stderr(&o).contains("typo.toml"),
-        "{}",
-        stderr(&o)
-    );
+    assert!(stderr(&o).contains("airy_radius") && stderr(&o).contains("typo.toml"), "{}", stderr(&o));
     let bad = d.join("bad.toml");
-    std::fs::write(
-        &bad,
-        "[optics]\npupil_samples = 4\n[camera]\ntype = \"flutter\"\nflutter_code = \"10x1\"\n",
-    )
-    .unwrap();
-    let o = run(&[
-        "psf",
-        "--config",
-        bad.to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    std::fs::write(&bad, "[optics]\npupil_samples = 4\n[camera]\ntype = \"flutter\"\nflutter_code = \"10x1\"\n").unwrap();
+    let o = run(&["psf", "--config", bad.to_str().unwrap(), "--out", out.to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(2));
     let e = stderr(&o);
-    assert!(
-        e.contains("optics.pupil_samples") && e.contains("camera.flutter_code"),
-        "both errors in one pass: {e}"
-    );
+    assert!(e.contains("optics.pupil_samples") && e.contains("camera.flutter_code"), "both errors in one pass: {e}");
     assert!(!out.exists());
 }
 
@@ -233,22 +157,8 @@ fn unwritable_output_and_unknown_extension_are_clear_errors() {
     let d = scratch("psf_out");
     let o = run(&["psf", "--psi", "0", "--out", "/nonexistent-dir/p.npy"]);
     assert_eq!(o.status.code(), Some(1));
-    assert!(
-        stderr(&o).contains("/nonexistent-dir/p.npy"),
-        "{}",
-        stderr(&o)
-    );
-    let o = run(&[
-        "psf",
-        "--psi",
-        "0",
-        "--out",
-        d.join("p.tiff").to_str().unwrap(),
-    ]);
+    assert!(stderr(&o).contains("/nonexistent-dir/p.npy"), "{}", stderr(&o));
+    let o = run(&["psf", "--psi", "0", "--out", d.join("p.tiff").to_str().unwrap()]);
     assert!(!o.status.success() && stderr(&o).contains("p.tiff"));
-    assert!(
-        files(&d).is_empty(),
-        "nothing half-written: {:?}",
-        files(&d)
-    );
+    assert!(files(&d).is_empty(), "nothing half-written: {:?}", files(&d));
 }
