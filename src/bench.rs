@@ -58,3 +58,171 @@ pub fn psf(kind: CameraKind, window: usize, repeats: usize) -> PsfBench {
         cold_ms_all: cold_all,
     }
 }
+
+/// Peak resident memory (kB) since the last [`reset_peak_rss`], from /proc (Linux).
+pub fn peak_rss_kb() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    s.lines().find(|l| l.starts_with("VmHWM:"))?.split_whitespace().nth(1)?.parse().ok()
+}
+
+/// Resets the peak-RSS counter (Linux 4.0+); false where unsupported.
+pub fn reset_peak_rss() -> bool {
+    std::fs::write("/proc/self/clear_refs", "5").is_ok()
+}
+
+/// One measured configuration of `bench generate`.
+#[derive(Debug, serde::Serialize)]
+pub struct GenerateRow {
+    pub mode: String,
+    pub frames: u64,
+    pub subframes_per_s_median: f64,
+    pub subframes_per_s_all: Vec<f64>,
+    pub ratio_to_ffmpeg_decode: f64,
+    pub ratio_to_own_decode: f64,
+    pub peak_rss_mb: Option<f64>,
+}
+
+/// Result of `bench generate`.
+#[derive(Debug, serde::Serialize)]
+pub struct GenerateBench {
+    pub clip: String,
+    pub width: usize,
+    pub height: usize,
+    pub fps: u32,
+    pub frames: u64,
+    pub repeats: usize,
+    pub threads: usize,
+    pub ffmpeg_decode_fps_median: f64,
+    pub own_decode_fps_median: f64,
+    pub rows: Vec<GenerateRow>,
+}
+
+fn ffmpeg_cli(args: &[&str]) -> crate::Result<()> {
+    let st = std::process::Command::new("ffmpeg")
+        .args(["-v", "error", "-y"])
+        .args(args)
+        .status()
+        .map_err(|e| crate::Error::Invalid(format!("ffmpeg CLI not found ({e}); run .ci/setup.sh")))?;
+    if !st.success() {
+        return Err(crate::Error::Invalid(format!("ffmpeg {args:?} failed")));
+    }
+    Ok(())
+}
+
+/// Makes a `w x h`, `fps` H.264 clip of `seconds` with FFmpeg's test pattern (fine detail,
+/// moving objects, scrolling gradient).
+fn make_clip(path: &std::path::Path, w: usize, h: usize, fps: u32, seconds: f64) -> crate::Result<()> {
+    let src = format!("testsrc2=size={w}x{h}:rate={fps}");
+    ffmpeg_cli(&["-f", "lavfi", "-i", &src, "-t", &format!("{seconds}"), "-c:v", "libx264", "-preset", "veryfast", "-pix_fmt", "yuv420p", path.to_str().unwrap_or_default()])
+}
+
+#[cfg(feature = "ffmpeg")]
+fn own_decode_fps(path: &std::path::Path) -> crate::Result<(f64, u64)> {
+    let mut r = crate::io::video::VideoReader::open(path).map_err(|e| crate::Error::Invalid(format!("{}: {e}", path.display())))?;
+    let t = Instant::now();
+    let mut n = 0u64;
+    while r.next_frame().map_err(crate::Error::Invalid)?.is_some() {
+        n += 1;
+    }
+    Ok((n as f64 / t.elapsed().as_secs_f64(), n))
+}
+
+fn ffmpeg_decode_fps(path: &std::path::Path, frames: u64) -> crate::Result<f64> {
+    let t = Instant::now();
+    ffmpeg_cli(&["-threads", "0", "-i", path.to_str().unwrap_or_default(), "-f", "null", "-"])?;
+    Ok(frames as f64 / t.elapsed().as_secs_f64())
+}
+
+fn bench_plan(mode: &str, clip: &std::path::Path, out: &std::path::Path) -> crate::Result<crate::config::Plan> {
+    let mut sets = vec![format!("sources.video.paths=[{:?}]", clip.display().to_string()), format!("sinks.shards.dir={:?}", out.display().to_string())];
+    if mode == "full frame" {
+        // Whole frames, noise, into a blackhole: the cost of generation without PNG encoding.
+        sets.extend(["transforms.patches.type=\"noise\"".into(), "transforms.patches.sigma=0.0".into(), "transforms.patches.inputs=[\"noise\"]".into()]);
+        sets.extend(["sinks.shards.type=\"blackhole\"".into()]);
+    }
+    let mut table = crate::config::parse(crate::cli::GENERATE_TOML, "pipelines/generate.toml (embedded)", &[])?;
+    if mode == "full frame" {
+        // Drop the patch keys that a noise stage does not have.
+        if let Some(t) = table.get_mut("transforms").and_then(|t| t.get_mut("patches")).and_then(|p| p.as_table_mut()) {
+            t.retain(|k, _| k == "inputs");
+        }
+        if let Some(t) = table.get_mut("sinks").and_then(|t| t.get_mut("shards")).and_then(|p| p.as_table_mut()) {
+            t.retain(|k, _| k == "inputs" || k == "dir");
+        }
+    }
+    crate::config::apply_sets(&mut table, &sets).map_err(crate::Error::Invalid)?;
+    crate::config::plan(table, &format!("bench ({mode})"))
+}
+
+/// `bench generate`: generation speed beside FFmpeg's decode-only speed of the same clip.
+///
+/// # Errors
+/// The ffmpeg CLI is missing, or a run fails.
+#[cfg(feature = "ffmpeg")]
+pub fn generate(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> crate::Result<GenerateBench> {
+    let dir = std::env::temp_dir().join(format!("pipeline-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).map_err(|e| crate::Error::Io { path: dir.clone(), source: e })?;
+    let clip = dir.join(format!("bench-{w}x{h}-{fps}fps.mp4"));
+    let long = dir.join(format!("bench-{w}x{h}-{fps}fps-long.mp4"));
+    eprintln!("bench: making {} and a clip twice as long with the ffmpeg CLI", clip.display());
+    make_clip(&clip, w, h, fps, seconds)?;
+    make_clip(&long, w, h, fps, 2.0 * seconds)?;
+    let repeats = repeats.max(1);
+    let (mut ff, mut own) = (Vec::new(), Vec::new());
+    let mut frames = 0;
+    for _ in 0..repeats {
+        let (o, n) = own_decode_fps(&clip)?;
+        frames = n;
+        own.push(o);
+        ff.push(ffmpeg_decode_fps(&clip, n)?);
+    }
+    let (ff_med, own_med) = (median(&mut ff), median(&mut own));
+    eprintln!("bench: decode only: ffmpeg CLI {ff_med:.0} frames/s, pipeline decoder (with RGB conversion) {own_med:.0} frames/s");
+    let mut rows = Vec::new();
+    for (mode, path) in [("full frame", &clip), ("patches", &clip), ("patches, clip twice as long", &long)] {
+        let mut rates = Vec::new();
+        let mut peak = None;
+        let mut n_frames = 0;
+        for _ in 0..repeats {
+            let out = dir.join("out");
+            let _ = std::fs::remove_dir_all(&out);
+            let plan = bench_plan(mode, path, &out)?;
+            let reset = reset_peak_rss();
+            let o = crate::graph::run(&plan, &crate::graph::RunOptions::default())?;
+            if reset {
+                let p = peak_rss_kb().map(|k| k as f64 / 1024.0);
+                peak = match (peak, p) {
+                    (Some(a), Some(b)) => Some(f64::max(a, b)),
+                    (a, b) => a.or(b),
+                };
+            }
+            n_frames = o.report.frames;
+            rates.push(o.report.subframes_per_s);
+        }
+        let all = rates.clone();
+        let m = median(&mut rates);
+        eprintln!("bench: {mode}: {m:.1} sub-frames/s (median of {repeats}), {:.2}x ffmpeg decode-only, peak RSS {}", m / ff_med, peak.map_or("n/a".into(), |p| format!("{p:.0} MB")));
+        rows.push(GenerateRow {
+            mode: mode.into(),
+            frames: n_frames,
+            subframes_per_s_median: m,
+            subframes_per_s_all: all,
+            ratio_to_ffmpeg_decode: m / ff_med,
+            ratio_to_own_decode: m / own_med,
+            peak_rss_mb: peak,
+        });
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    Ok(GenerateBench {
+        clip: format!("testsrc2 {w}x{h} {fps} fps H.264 (x264 veryfast), {seconds} s"),
+        width: w,
+        height: h,
+        fps,
+        frames,
+        repeats,
+        threads: std::thread::available_parallelism().map_or(1, |t| t.get()),
+        ffmpeg_decode_fps_median: ff_med,
+        own_decode_fps_median: own_med,
+        rows,
+    })
+}

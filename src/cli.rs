@@ -64,6 +64,22 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 7, value_parser = clap::value_parser!(u16).range(1..=1000))]
         repeats: u16,
     },
+    /// Generation speed (full frame and patch mode) beside FFmpeg's decode-only speed of the
+    /// same clip, which it makes with the ffmpeg CLI; peak memory on a clip twice as long.
+    Generate {
+        #[arg(long, default_value_t = 1280)]
+        width: usize,
+        #[arg(long, default_value_t = 720)]
+        height: usize,
+        #[arg(long, default_value_t = 240)]
+        fps: u32,
+        /// Length of the clip.
+        #[arg(long, default_value_t = 2.0)]
+        seconds: f64,
+        /// Repeats; the median is reported.
+        #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u16).range(1..=100))]
+        repeats: u16,
+    },
 }
 
 /// Options shared by the commands that run a pipeline.
@@ -346,6 +362,11 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
                 }])
                 .into());
             }
+            Ok(())
+        }
+        Command::Bench(BenchCommand::Generate { width, height, fps, seconds, repeats }) => {
+            let r = crate::bench::generate(width, height, fps, seconds, repeats as usize)?;
+            println!("{}", serde_json::to_string_pretty(&r)?);
             Ok(())
         }
         Command::Bench(BenchCommand::Psf { camera, window, repeats }) => {

@@ -63,6 +63,8 @@ pub struct Blurrer {
     convs: HashMap<(usize, usize), Vec<Mutex<FftConv>>>,
     /// Reused buffers per padded size.
     work: HashMap<(usize, usize), Workspace>,
+    /// Per-worker buffers for patch mode.
+    patch_work: HashMap<(usize, usize), Vec<Mutex<Workspace>>>,
 }
 
 /// Buffers kept between windows: no page faults on the hot path.
@@ -90,7 +92,7 @@ impl Blurrer {
             let rendered: Vec<Vec<f32>> = kernels.iter().map(|k| k.render(c, margin)).collect();
             factorise(&rendered, rank_tolerance)
         });
-        Ok(Blurrer { camera, n, kernels, margin, threads, factors, spectra: HashMap::new(), convs: HashMap::new(), work: HashMap::new() })
+        Ok(Blurrer { camera, n, kernels, margin, threads, factors, spectra: HashMap::new(), convs: HashMap::new(), work: HashMap::new(), patch_work: HashMap::new() })
     }
 
     pub fn kernels(&self) -> &[SubframeKernel] {
@@ -134,123 +136,171 @@ impl Blurrer {
         arc
     }
 
-    /// Blurs the `rw x rh` region at (x0, y0) of a window of linear frames (mirrored borders);
-    /// returns planar linear RGB of that region.
+    fn workspace(ranks: [usize; 3], hp: usize, wp: usize) -> Workspace {
+        Workspace {
+            // Zero once: the padding beyond the region is never written afterwards.
+            combined: std::array::from_fn(|c| (0..ranks[c]).map(|_| vec![0.0f32; hp * wp]).collect()),
+            slots: std::array::from_fn(|c| (0..ranks[c]).map(|_| vec![Complex32::new(0.0, 0.0); hp * (wp / 2 + 1)]).collect()),
+        }
+    }
+
+    /// Blurs the `rw x rh` region at (x0, y0) of a window of linear frames (mirrored borders),
+    /// all workers on this one region; returns planar linear RGB of that region.
     pub fn blur_region(&mut self, frames: &[Arc<Frame>], x0: isize, y0: isize, rw: usize, rh: usize) -> [Vec<f32>; 3] {
         assert_eq!(frames.len(), self.n);
         let m = self.margin;
         let (hp, wp) = (fast_size(rh + 2 * m), fast_size(rw + 2 * m));
         let spectra = self.prepare(hp, wp);
         let ranks = self.ranks();
-        let ws = self.work.entry((hp, wp)).or_insert_with(|| Workspace {
-            // Zero once: the padding beyond the region is never written afterwards.
-            combined: std::array::from_fn(|c| (0..ranks[c]).map(|_| vec![0.0f32; hp * wp]).collect()),
-            slots: std::array::from_fn(|c| (0..ranks[c]).map(|_| vec![Complex32::new(0.0, 0.0); hp * (wp / 2 + 1)]).collect()),
-        });
+        let ws = self.work.entry((hp, wp)).or_insert_with(|| Blurrer::workspace(ranks, hp, wp));
+        blur_core(&self.factors, &spectra, &self.convs[&(hp, wp)], ws, frames, m, (x0, y0, rw, rh))
+    }
+
+    /// Blurs `size x size` patches at each top-left corner: patches are spread over the workers,
+    /// each blurring whole patches on its own (no synchronisation inside a small patch).
+    pub fn blur_patches(&mut self, frames: &[Arc<Frame>], corners: &[(usize, usize)], size: usize) -> Vec<[Vec<f32>; 3]> {
+        assert_eq!(frames.len(), self.n);
+        let m = self.margin;
+        let (hp, wp) = (fast_size(size + 2 * m), fast_size(size + 2 * m));
+        let spectra = self.prepare(hp, wp);
+        let ranks = self.ranks();
+        let threads = self.threads;
+        let pool = self.patch_work.entry((hp, wp)).or_insert_with(|| (0..threads).map(|_| Mutex::new(Blurrer::workspace(ranks, hp, wp))).collect());
         let convs = &self.convs[&(hp, wp)];
         let factors = &self.factors;
-        let (fw, fh) = (frames[0].width, frames[0].height);
-        let (ew, eh) = (rw + 2 * m, rh + 2 * m);
-        let (ex, ey) = (x0 - m as isize, y0 - m as isize);
-        // Phase 1: the combined images sum_k a_kr S_k of every channel and rank, by row bands;
-        // each job owns its rows of every rank's buffer.
-        let band_rows = eh.div_ceil(BANDS);
-        let mut jobs: Vec<(usize, usize, Vec<&mut [f32]>)> = Vec::new();
-        for (c, bufs) in ws.combined.iter_mut().enumerate() {
-            let mut per_rank: Vec<_> = bufs.iter_mut().map(|b| b[..eh * wp].chunks_mut(band_rows * wp)).collect();
-            for band in 0..eh.div_ceil(band_rows) {
-                jobs.push((c, band, per_rank.iter_mut().map(|it| it.next().expect("band")).collect()));
+        let next = AtomicUsize::new(0);
+        let results: Vec<Mutex<Option<[Vec<f32>; 3]>>> = corners.iter().map(|_| Mutex::new(None)).collect();
+        run_workers(convs.len().min(corners.len()).max(1), |w| {
+            let mut ws = pool[w].lock().expect("workspace");
+            let one = std::slice::from_ref(&convs[w]);
+            loop {
+                let i = next.fetch_add(1, Ordering::Relaxed);
+                let Some(&(x, y)) = corners.get(i) else { break };
+                let out = blur_core(factors, &spectra, one, &mut ws, frames, m, (x as isize, y as isize, size, size));
+                *results[i].lock().expect("slot") = Some(out);
             }
+        });
+        results.into_iter().map(|r| r.into_inner().expect("slot").expect("every patch blurred")).collect()
+    }
+}
+
+/// Runs `f(worker)` for workers `0..n`: inline for one, on scoped threads otherwise.
+fn run_workers<F: Fn(usize) + Sync>(n: usize, f: F) {
+    if n <= 1 {
+        f(0);
+        return;
+    }
+    std::thread::scope(|s| {
+        for w in 0..n {
+            let f = &f;
+            s.spawn(move || f(w));
         }
-        let queue = Mutex::new(jobs);
-        std::thread::scope(|s| {
-            for _ in 0..convs.len() {
-                let queue = &queue;
-                s.spawn(move || {
-                    let cols: Vec<usize> = (0..ew).map(|x| reflect(ex + x as isize, fw)).collect();
-                    let span = if ex >= 0 && ex as usize + ew <= fw { Cols::From(ex as usize) } else { Cols::Index(&cols) };
-                    let mut row = vec![0.0f32; ew];
-                    loop {
-                        // Take the job in its own statement: a guard in a `while let` scrutinee
-                        // would stay locked for the whole body and serialise the workers.
-                        let job = queue.lock().expect("jobs").pop();
-                        let Some((c, band, mut outs)) = job else { break };
-                        let f = &factors[c];
-                        let y_lo = band * band_rows;
-                        let rows_here = outs[0].len() / wp;
-                        for ly in 0..rows_here {
-                            let sy = reflect(ey + (y_lo + ly) as isize, fh);
-                            for (k, frame) in frames.iter().enumerate() {
-                                frame.linear_row(c, sy, span, &mut row);
-                                for (r, out) in outs.iter_mut().enumerate() {
-                                    let a = f.coeffs[k][r] as f32;
-                                    let o = &mut out[ly * wp..ly * wp + ew];
-                                    if k == 0 {
-                                        o.iter_mut().zip(&row).for_each(|(o, v)| *o = a * v);
-                                    } else {
-                                        o.iter_mut().zip(&row).for_each(|(o, v)| *o += a * v);
-                                    }
-                                }
-                            }
+    });
+}
+
+/// The three phases on one region: combined images, forward FFTs times basis spectra, one
+/// inverse per channel. `region` is (x0, y0, rw, rh).
+fn blur_core(
+    factors: &[LowRank; 3],
+    spectra: &[Vec<Vec<Complex32>>; 3],
+    convs: &[Mutex<FftConv>],
+    ws: &mut Workspace,
+    frames: &[Arc<Frame>],
+    m: usize,
+    region: (isize, isize, usize, usize),
+) -> [Vec<f32>; 3] {
+    let (x0, y0, rw, rh) = region;
+    let (hp, wp) = {
+        let c = convs[0].lock().expect("conv");
+        (c.hp, c.wp)
+    };
+    let (fw, fh) = (frames[0].width, frames[0].height);
+    let (ew, eh) = (rw + 2 * m, rh + 2 * m);
+    let (ex, ey) = (x0 - m as isize, y0 - m as isize);
+    let workers = convs.len();
+    // Phase 1: the combined images sum_k a_kr S_k of every channel and rank, by row bands;
+    // each job owns its rows of every rank's buffer.
+    let bands = if workers == 1 { 1 } else { BANDS };
+    let band_rows = eh.div_ceil(bands);
+    let mut jobs: Vec<(usize, usize, Vec<&mut [f32]>)> = Vec::new();
+    for (c, bufs) in ws.combined.iter_mut().enumerate() {
+        let mut per_rank: Vec<_> = bufs.iter_mut().map(|b| b[..eh * wp].chunks_mut(band_rows * wp)).collect();
+        for band in 0..eh.div_ceil(band_rows) {
+            jobs.push((c, band, per_rank.iter_mut().map(|it| it.next().expect("band")).collect()));
+        }
+    }
+    let queue = Mutex::new(jobs);
+    run_workers(workers, |_| {
+        let cols: Vec<usize> = (0..ew).map(|x| reflect(ex + x as isize, fw)).collect();
+        let span = if ex >= 0 && ex as usize + ew <= fw { Cols::From(ex as usize) } else { Cols::Index(&cols) };
+        let mut row = vec![0.0f32; ew];
+        loop {
+            // Take the job in its own statement: a guard in a `while let` scrutinee would stay
+            // locked for the whole body and serialise the workers.
+            let job = queue.lock().expect("jobs").pop();
+            let Some((c, band, mut outs)) = job else { break };
+            let f = &factors[c];
+            let y_lo = band * band_rows;
+            let rows_here = outs[0].len() / wp;
+            for ly in 0..rows_here {
+                let sy = reflect(ey + (y_lo + ly) as isize, fh);
+                for (k, frame) in frames.iter().enumerate() {
+                    frame.linear_row(c, sy, span, &mut row);
+                    for (r, out) in outs.iter_mut().enumerate() {
+                        let a = f.coeffs[k][r] as f32;
+                        let o = &mut out[ly * wp..ly * wp + ew];
+                        if k == 0 {
+                            o.iter_mut().zip(&row).for_each(|(o, v)| *o = a * v);
+                        } else {
+                            o.iter_mut().zip(&row).for_each(|(o, v)| *o += a * v);
                         }
                     }
-                });
-            }
-        });
-        // Phase 2: one forward FFT per (channel, rank), times the basis spectrum, into its slot.
-        let mut jobs: Vec<(&[f32], &[Complex32], &mut Vec<Complex32>)> = Vec::new();
-        for (c, (bufs, slots)) in ws.combined.iter().zip(ws.slots.iter_mut()).enumerate() {
-            for (r, (img, slot)) in bufs.iter().zip(slots.iter_mut()).enumerate() {
-                jobs.push((img, &spectra[c][r], slot));
+                }
             }
         }
-        let queue = Mutex::new(jobs);
-        std::thread::scope(|s| {
-            for conv in convs {
-                let queue = &queue;
-                s.spawn(move || {
-                    let mut conv = conv.lock().expect("conv lock");
-                    loop {
-                        let job = queue.lock().expect("jobs").pop();
-                        let Some((img, spec, slot)) = job else { break };
-                        conv.forward_mul(img, spec, slot);
-                    }
-                });
+    });
+    // Phase 2: one forward FFT per (channel, rank), times the basis spectrum, into its slot.
+    let mut jobs: Vec<(&[f32], &[Complex32], &mut Vec<Complex32>)> = Vec::new();
+    for (c, (bufs, slots)) in ws.combined.iter().zip(ws.slots.iter_mut()).enumerate() {
+        for (r, (img, slot)) in bufs.iter().zip(slots.iter_mut()).enumerate() {
+            jobs.push((img, &spectra[c][r], slot));
+        }
+    }
+    let queue = Mutex::new(jobs);
+    run_workers(workers, |w| {
+        let mut conv = convs[w].lock().expect("conv lock");
+        loop {
+            let job = queue.lock().expect("jobs").pop();
+            let Some((img, spec, slot)) = job else { break };
+            conv.forward_mul(img, spec, slot);
+        }
+    });
+    // Phase 3: sum the ranks in order (deterministic), one inverse per channel.
+    let outs: Vec<Mutex<Vec<f32>>> = (0..3).map(|_| Mutex::new(Vec::new())).collect();
+    let slots = &ws.slots;
+    let next = AtomicUsize::new(0);
+    run_workers(workers.min(3), |w| {
+        let mut conv = convs[w].lock().expect("conv lock");
+        let mut full = vec![0.0f32; hp * wp];
+        loop {
+            let c = next.fetch_add(1, Ordering::Relaxed);
+            if c >= 3 {
+                break;
             }
-        });
-        // Phase 3: sum the ranks in order (deterministic), one inverse per channel.
-        let sums: [Vec<Complex32>; 3] = std::array::from_fn(|c| {
-            let slots = &ws.slots[c];
-            let mut sum = slots[0].clone();
-            for slot in &slots[1..] {
+            let mut sum = slots[c][0].clone();
+            for slot in &slots[c][1..] {
                 mul_acc_add(&mut sum, slot);
             }
-            sum
-        });
-        // One inverse per channel, channels spread over the workers.
-        let out: Vec<Vec<f32>> = std::thread::scope(|s| {
-            let handles: Vec<_> = sums
-                .into_iter()
-                .enumerate()
-                .map(|(c, mut spec)| {
-                    let conv = &convs[c % convs.len()];
-                    s.spawn(move || {
-                        let mut conv = conv.lock().expect("conv lock");
-                        let mut full = vec![0.0f32; hp * wp];
-                        conv.inverse(&mut spec, &mut full);
-                        let mut o = Vec::with_capacity(rw * rh);
-                        for y in 0..rh {
-                            o.extend_from_slice(&full[(y + m) * wp + m..(y + m) * wp + m + rw]);
-                        }
-                        o
-                    })
-                })
-                .collect();
-            handles.into_iter().map(|h| h.join().expect("inverse worker")).collect()
-        });
-        let mut it = out.into_iter();
-        std::array::from_fn(|_| it.next().expect("3 channels"))
-    }
+            conv.inverse(&mut sum, &mut full);
+            let mut o = Vec::with_capacity(rw * rh);
+            for y in 0..rh {
+                o.extend_from_slice(&full[(y + m) * wp + m..(y + m) * wp + m + rw]);
+            }
+            *outs[c].lock().expect("out") = o;
+        }
+    });
+    let mut it = outs.into_iter().map(|o| o.into_inner().expect("out"));
+    std::array::from_fn(|_| it.next().expect("3 channels"))
 }
 
 fn mul_acc_add(acc: &mut [Complex32], other: &[Complex32]) {
@@ -302,10 +352,11 @@ impl CodedBlur {
                 let pos = sel
                     .positions(self.seed, input.index, self.window, w, h)
                     .map_err(|e| StageError::Input(input.clone(), format!("{}: {e}", input.path)))?;
+                let lqs = self.blurrer.blur_patches(&frames, &pos, sel.size);
                 pos.into_iter()
+                    .zip(lqs)
                     .enumerate()
-                    .map(|(i, (x, y))| {
-                        let lq = self.blurrer.blur_region(&frames, x as isize, y as isize, sel.size, sel.size);
+                    .map(|(i, ((x, y), lq))| {
                         let gt = mid.linear_crop(x, y, sel.size, sel.size);
                         Pair { patch: Some(i as u32), x, y, w: sel.size, h: sel.size, lq: Img::Linear(lq), gt: Img::Linear(gt) }
                     })
@@ -448,8 +499,12 @@ mod tests {
         let fr = frames(5, w, h, 2);
         let full = b.blur_region(&fr, 0, 0, w, h);
         // A patch at the corner (mirrored borders inside the margin) and one inside.
-        for (x, y) in [(0usize, 0usize), (41, 23)] {
+        let corners = [(0usize, 0usize), (41, 23)];
+        let batch = b.blur_patches(&fr, &corners, 32);
+        for (i, (x, y)) in corners.into_iter().enumerate() {
             let part = b.blur_region(&fr, x as isize, y as isize, 32, 32);
+            // Patch mode (one worker per patch) computes exactly what all workers on one region do.
+            assert!(batch[i] == part, "patch {i}: blur_patches differs from blur_region");
             let want = crop(&full, w, x, y, 32, 32);
             for c in 0..3 {
                 let worst = part[c].iter().zip(&want[c]).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
