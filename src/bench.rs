@@ -113,7 +113,21 @@ fn ffmpeg_cli(args: &[&str]) -> crate::Result<()> {
 /// moving objects, scrolling gradient).
 fn make_clip(path: &std::path::Path, w: usize, h: usize, fps: u32, seconds: f64) -> crate::Result<()> {
     let src = format!("testsrc2=size={w}x{h}:rate={fps}");
-    ffmpeg_cli(&["-f", "lavfi", "-i", &src, "-t", &format!("{seconds}"), "-c:v", "libx264", "-preset", "veryfast", "-pix_fmt", "yuv420p", path.to_str().unwrap_or_default()])
+    ffmpeg_cli(&[
+        "-f",
+        "lavfi",
+        "-i",
+        &src,
+        "-t",
+        &format!("{seconds}"),
+        "-c:v",
+        "libx264",
+        "-preset",
+        "veryfast",
+        "-pix_fmt",
+        "yuv420p",
+        path.to_str().unwrap_or_default(),
+    ])
 }
 
 #[cfg(feature = "ffmpeg")]
@@ -134,10 +148,17 @@ fn ffmpeg_decode_fps(path: &std::path::Path, frames: u64) -> crate::Result<f64> 
 }
 
 fn bench_plan(mode: &str, clip: &std::path::Path, out: &std::path::Path) -> crate::Result<crate::config::Plan> {
-    let mut sets = vec![format!("sources.video.paths=[{:?}]", clip.display().to_string()), format!("sinks.shards.dir={:?}", out.display().to_string())];
+    let mut sets = vec![
+        format!("sources.video.paths=[{:?}]", clip.display().to_string()),
+        format!("sinks.shards.dir={:?}", out.display().to_string()),
+    ];
     if mode == "full frame" {
         // Whole frames, noise, into a blackhole: the cost of generation without PNG encoding.
-        sets.extend(["transforms.patches.type=\"noise\"".into(), "transforms.patches.sigma=0.0".into(), "transforms.patches.inputs=[\"noise\"]".into()]);
+        sets.extend([
+            "transforms.patches.type=\"noise\"".into(),
+            "transforms.patches.sigma=0.0".into(),
+            "transforms.patches.inputs=[\"noise\"]".into(),
+        ]);
         sets.extend(["sinks.shards.type=\"blackhole\"".into()]);
     }
     let mut table = crate::config::parse(crate::cli::GENERATE_TOML, "pipelines/generate.toml (embedded)", &[])?;
@@ -201,7 +222,11 @@ pub fn generate(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> c
         }
         let all = rates.clone();
         let m = median(&mut rates);
-        eprintln!("bench: {mode}: {m:.1} sub-frames/s (median of {repeats}), {:.2}x ffmpeg decode-only, peak RSS {}", m / ff_med, peak.map_or("n/a".into(), |p| format!("{p:.0} MB")));
+        eprintln!(
+            "bench: {mode}: {m:.1} sub-frames/s (median of {repeats}), {:.2}x ffmpeg decode-only, peak RSS {}",
+            m / ff_med,
+            peak.map_or("n/a".into(), |p| format!("{p:.0} MB"))
+        );
         rows.push(GenerateRow {
             mode: mode.into(),
             frames: n_frames,

@@ -99,7 +99,9 @@ impl VideoReader {
         // Planar G, B, R straight from swscale: no interleaving to undo later.
         let target = if deep { ff::format::Pixel::GBRP16LE } else { ff::format::Pixel::GBRP };
         if self.scaler.is_none() {
-            let flags = ff::software::scaling::Flags::BILINEAR | ff::software::scaling::Flags::ACCURATE_RND | ff::software::scaling::Flags::FULL_CHR_H_INT;
+            let flags = ff::software::scaling::Flags::BILINEAR
+                | ff::software::scaling::Flags::ACCURATE_RND
+                | ff::software::scaling::Flags::FULL_CHR_H_INT;
             let mut sc = ff::software::scaling::Context::get(self.decoded.format(), w, h, target, w, h, flags).map_err(fmt_err)?;
             set_colorspace(&mut sc, &self.decoded);
             self.scaler = Some(sc);

@@ -93,3 +93,20 @@ fn every_shipped_pipeline_validates() {
     assert_eq!(o.status.code(), Some(2));
     assert!(out.contains("did you mean \"linear\"") && out.contains("transforms.patches.size"), "all errors in one pass: {out}");
 }
+
+#[test]
+fn ctrl_c_stops_cleanly_and_leaves_no_half_written_shard() {
+    let out = scratch("ctrl_c");
+    let mut child = bin()
+        .args(["generate", FIXTURE, "-o", out.to_str().unwrap(), "--progress", "never"])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(700));
+    let st = std::process::Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+    assert!(st.success());
+    let o = child.wait_with_output().unwrap();
+    let e = stderr(&o);
+    assert!(!o.status.success() && e.contains("interrupted"), "{e}");
+    no_shards(&out);
+}
