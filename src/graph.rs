@@ -90,6 +90,8 @@ pub struct Report {
     pub inputs_skipped: Vec<String>,
     pub inputs_done: u64,
     pub inputs_failed: Vec<FailedInput>,
+    /// Size, frame rate, codec and frame counts of every input read.
+    pub inputs: Vec<crate::stage::InputReport>,
     pub frames: u64,
     pub windows: u64,
     pub subframes: u64,
@@ -444,6 +446,7 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
         inputs_skipped: skipped,
         inputs_done: Counters::get(&counters.inputs_done),
         inputs_failed: failures.into_iter().map(|(path, error)| FailedInput { path, error }).collect(),
+        inputs: counters.inputs.lock().expect("inputs").clone(),
         frames,
         windows,
         subframes,

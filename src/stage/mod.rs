@@ -41,6 +41,17 @@ pub struct Counters {
     pub inputs_done: AtomicU64,
     pub inputs_failed: AtomicU64,
     pub inputs_total: AtomicU64,
+    /// What each source measured of its inputs (path, size, frame rate, frame counts).
+    pub inputs: std::sync::Mutex<Vec<InputReport>>,
+}
+
+/// One input as the report shows it.
+#[derive(Debug, Clone, serde::Serialize)]
+pub struct InputReport {
+    pub path: String,
+    #[serde(flatten)]
+    pub info: crate::frame::InputInfo,
+    pub frames_read: u64,
 }
 
 impl Counters {
@@ -49,6 +60,10 @@ impl Counters {
     }
     pub fn get(c: &AtomicU64) -> u64 {
         c.load(Ordering::Relaxed)
+    }
+    /// Records an input's facts once it has been read.
+    pub fn input(&self, path: &str, info: &crate::frame::InputInfo, frames_read: u64) {
+        self.inputs.lock().expect("inputs").push(InputReport { path: path.to_string(), info: info.clone(), frames_read });
     }
 }
 

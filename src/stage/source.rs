@@ -92,6 +92,7 @@ impl Source for Decode {
                     Err(e) => break Err(e),
                 }
             };
+            self.counters.input(&input.path, &reader.info, n);
             let end = end.map_err(|e| format!("{}: {e}", path.display()));
             if !out.send(Item::End(input.clone(), end)) {
                 return Ok(());
@@ -281,6 +282,7 @@ impl Source for Stills {
                 }
                 continue;
             }
+            self.counters.input(&input.path, &info, frames.len() as u64);
             if !out.send(Item::Begin(input.clone(), info)) {
                 return Ok(());
             }

@@ -79,6 +79,10 @@ fn shards_read_as_webdataset_samples_of_128px_pngs() {
     assert_eq!(m["samples"], 24);
     let r: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join("report.json")).unwrap()).unwrap();
     assert_eq!((r["frames"].as_u64(), r["windows"].as_u64()), (Some(27), Some(3)));
+    assert_eq!(r["inputs"][0]["fps"], 240.0);
+    assert_eq!(r["inputs"][0]["frames_announced"], 360);
+    assert_eq!(r["inputs"][0]["frames_read"], 27);
+    assert_eq!(r["inputs"][0]["codec"], "h264");
     assert!(r["stages"].as_array().unwrap().len() == 6);
 }
 
