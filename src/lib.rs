@@ -14,6 +14,7 @@ pub mod error;
 pub mod frame;
 pub mod graph;
 pub mod io;
+pub mod metrics;
 pub mod optics;
 pub mod psfcmd;
 pub mod rng;
