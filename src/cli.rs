@@ -37,6 +37,25 @@ pub enum Command {
     Generate(GenerateArgs),
     /// Run a pipeline file.
     Run(RunArgs),
+    /// Train the U-Net or the shallow model on generated shards (Huber loss, Adam).
+    #[cfg(feature = "train")]
+    #[command(
+        after_help = "Examples:\n  pipeline train --config pipelines/train.toml\n  pipeline train --config pipelines/train.toml --set optim.steps=2000 --resume\n  pipeline train --config pipelines/train-shallow.toml --set output.dir=runs/shallow\n\nWrites checkpoints (model-STEP.safetensors + optimizer state), latest.json, report.json and\ncurves.png to output.dir."
+    )]
+    Train {
+        /// Training file (TOML): [model], [data], [optim], [validate], [output].
+        #[arg(long)]
+        config: PathBuf,
+        /// Override one key: --set optim.steps=500 (repeatable).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        sets: Vec<String>,
+        /// Continue from output.dir/latest.json with the same data order.
+        #[arg(long)]
+        resume: bool,
+        /// Progress display on stderr.
+        #[arg(long, value_enum, default_value_t = ProgressMode::Auto)]
+        progress: ProgressMode,
+    },
     /// Check pipeline files and report every error, each naming its key.
     Validate {
         /// Pipeline files.
@@ -309,6 +328,37 @@ fn run_plan(table: toml::Table, origin: &str, out: Option<&PathBuf>, c: &RunComm
     Ok(())
 }
 
+/// Checks a TOML file of any kind `pipeline` reads: a training file (`[model]`), an optics
+/// file (`[optics]`/`[camera]` only) or a pipeline; says what it is.
+fn describe(table: toml::Table, origin: &str) -> crate::Result<String> {
+    #[cfg(feature = "train")]
+    if table.contains_key("model") {
+        let cfg: crate::train::TrainConfig = toml::Value::Table(table)
+            .try_into()
+            .map_err(|e: toml::de::Error| crate::Error::ConfigText(format!("{origin}: {}", e.to_string().trim())))?;
+        let errs = cfg.validate();
+        if !errs.is_empty() {
+            return Err(crate::Error::Config(errs));
+        }
+        return Ok(format!("training file: {}, {} steps", cfg.model.name(), cfg.optim.steps));
+    }
+    if !table.contains_key("sources") && (table.contains_key("optics") || table.contains_key("camera")) {
+        let f: OpticsFile = toml::Value::Table(table)
+            .try_into()
+            .map_err(|e: toml::de::Error| crate::Error::ConfigText(format!("{origin}: {}", e.to_string().trim())))?;
+        let mut errs = f.optics.validate("optics");
+        if let Some(c) = &f.camera {
+            errs.extend(c.validate("camera"));
+        }
+        if !errs.is_empty() {
+            return Err(crate::Error::Config(errs));
+        }
+        return Ok(format!("optics file: Airy radius {:.2} px", f.optics.airy_radius_ref_px()));
+    }
+    let plan = crate::config::plan(table, origin)?;
+    Ok(plan.stages.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>().join(" -> "))
+}
+
 /// Runs a parsed command line.
 ///
 /// # Errors
@@ -336,6 +386,29 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             let origin = a.config.as_ref().map_or("pipelines/generate.toml (embedded)".to_string(), |p| p.display().to_string());
             run_plan(table, &origin, a.out.as_ref(), &a.common)
         }
+        #[cfg(feature = "train")]
+        Command::Train { config, sets, resume, progress } => {
+            let table = crate::config::load(&config, &sets)?;
+            let cfg: crate::train::TrainConfig = toml::Value::Table(table)
+                .try_into()
+                .map_err(|e: toml::de::Error| crate::Error::ConfigText(format!("{}: {}", config.display(), e.to_string().trim())))?;
+            let bar = progress == ProgressMode::Auto && std::io::IsTerminal::is_terminal(&std::io::stderr());
+            let r = crate::train::train(&cfg, &crate::train::TrainOptions { resume, progress: bar, stop_after: None })?;
+            let last = r.validation.last();
+            eprintln!(
+                "{}: {} steps in {:.0} s ({:.1} patches/s){} -> {}",
+                r.arch,
+                r.steps,
+                r.seconds,
+                r.patches_per_s,
+                last.map_or(String::new(), |v| format!(
+                    ", validation PSNR {:.2} dB / SSIM {:.4} (blurred input {:.2} / {:.4})",
+                    v.model.psnr_rgb, v.model.ssim_rgb, v.input.psnr_rgb, v.input.ssim_rgb
+                )),
+                cfg.output.dir
+            );
+            Ok(())
+        }
         Command::Run(a) => {
             let table = crate::config::load(&a.pipeline, &a.common.sets)?;
             run_plan(table, &a.pipeline.display().to_string(), a.out.as_ref(), &a.common)
@@ -343,10 +416,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Validate { pipelines, sets } => {
             let mut bad = 0;
             for p in &pipelines {
-                match crate::config::load(p, &sets).and_then(|t| crate::config::plan(t, &p.display().to_string())) {
-                    Ok(plan) => {
-                        println!("{}: ok ({})", p.display(), plan.stages.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>().join(" -> "))
-                    }
+                match crate::config::load(p, &sets).and_then(|t| describe(t, &p.display().to_string())) {
+                    Ok(what) => println!("{}: ok ({what})", p.display()),
                     Err(e) => {
                         bad += 1;
                         for line in e.to_string().lines() {

@@ -15,9 +15,14 @@ pub mod frame;
 pub mod graph;
 pub mod io;
 pub mod metrics;
+#[cfg(feature = "train")]
+pub mod model;
 pub mod optics;
+pub mod plot;
 pub mod psfcmd;
 pub mod rng;
 pub mod stage;
+#[cfg(feature = "train")]
+pub mod train;
 
 pub use error::{Error, Result};

@@ -32,7 +32,11 @@ pub fn luma(rgb: &[u8]) -> Vec<f64> {
 pub fn psnr(a: &[f64], b: &[f64]) -> f64 {
     assert_eq!(a.len(), b.len());
     let mse = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum::<f64>() / a.len().max(1) as f64;
-    if mse == 0.0 { f64::INFINITY } else { 10.0 * (255.0 * 255.0 / mse).log10() }
+    if mse == 0.0 {
+        f64::INFINITY
+    } else {
+        10.0 * (255.0 * 255.0 / mse).log10()
+    }
 }
 
 fn gaussian_window() -> [f64; 11] {
@@ -123,7 +127,9 @@ mod tests {
     fn ssim_falls_with_noise_and_luma_matches_bt601() {
         let (w, h) = (32, 32);
         let img: Vec<u8> = (0..w * h * 3).map(|i| ((i * 37) % 251) as u8).collect();
-        let noisy = |amp: u64| -> Vec<u8> { img.iter().enumerate().map(|(i, &v)| v.saturating_add((crate::rng::hash(&[i as u64]) % amp) as u8)).collect() };
+        let noisy = |amp: u64| -> Vec<u8> {
+            img.iter().enumerate().map(|(i, &v)| v.saturating_add((crate::rng::hash(&[i as u64]) % amp) as u8)).collect()
+        };
         let (q5, q40) = (quality(&img, &noisy(5), w, h), quality(&img, &noisy(40), w, h));
         assert!(q40.ssim_rgb < q5.ssim_rgb && q5.ssim_rgb < 1.0, "{q5:?} {q40:?}");
         assert!(q40.psnr_rgb < q5.psnr_rgb && q40.ssim_y < q5.ssim_y, "{q5:?} {q40:?}");

@@ -4,3 +4,5 @@ mod bad_input;
 mod common;
 mod generate;
 mod psf_cli;
+#[cfg(feature = "train")]
+mod train;

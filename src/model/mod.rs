@@ -1,0 +1,278 @@
+//! The paper's networks (section 4 and supplementary B) on burn, for any burn device (the flex
+//! CPU backend by default; `wgpu`/`cuda` features for GPUs).
+//!
+//! - [`UNet`]: CONV_in 3 -> b; DOWN b -> 2b -> 4b -> 8b -> 8b (2x2 max-pool, then a double
+//!   3x3 conv + BatchNorm + LeakyReLU without bias); UP with a x2 transposed convolution,
+//!   concatenation with the skip of the same scale, then a double conv (16b -> 4b, 8b -> 2b,
+//!   4b -> b, 2b -> b); CONV_out b -> 3 (1x1). The input is added to the output: the network
+//!   predicts a residual. `base = 64` is the paper's (about 14.8 M parameters).
+//! - [`Shallow`]: 10 blocks of 3x3 conv + BatchNorm + ReLU of `width` filters (32 in the paper),
+//!   the last a plain conv to 3 channels, with the same residual.
+//!
+//! Images are `[batch, 3, h, w]`, encoded sRGB values in [0, 1]. Any size works: the U-Net pads
+//! to a multiple of 16 (edge replication) and crops back.
+
+use burn::module::Module;
+use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfig};
+use burn::nn::pool::{MaxPool2d, MaxPool2dConfig};
+use burn::nn::{BatchNorm, BatchNormConfig, Initializer, PaddingConfig2d};
+use burn::tensor::activation::{leaky_relu, relu};
+use burn::tensor::ops::PadMode;
+use burn::tensor::{Device, Tensor};
+use serde::{Deserialize, Serialize};
+
+/// Which network, and its width.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "snake_case", deny_unknown_fields)]
+pub enum Arch {
+    /// The paper's U-Net; `base` filters at full resolution (64 in the paper).
+    Unet { base: usize },
+    /// The shallow ablation model; `width` filters per block (32 in the paper).
+    Shallow { width: usize },
+}
+
+impl Arch {
+    pub fn name(&self) -> String {
+        match self {
+            Arch::Unet { base } => format!("unet-{base}"),
+            Arch::Shallow { width } => format!("shallow-{width}"),
+        }
+    }
+}
+
+fn conv3(cin: usize, cout: usize, device: &Device) -> Conv2d {
+    Conv2dConfig::new([cin, cout], [3, 3]).with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1)).with_bias(false).init(device)
+}
+
+/// Conv 3x3 (no bias) + BatchNorm, followed by an activation in `forward`.
+#[derive(Module, Debug)]
+pub struct ConvBn {
+    conv: Conv2d,
+    bn: BatchNorm,
+}
+
+impl ConvBn {
+    fn new(cin: usize, cout: usize, device: &Device) -> ConvBn {
+        ConvBn { conv: conv3(cin, cout, device), bn: BatchNormConfig::new(cout).init(device) }
+    }
+    fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        self.bn.forward(self.conv.forward(x))
+    }
+}
+
+/// Two ConvBn + LeakyReLU.
+#[derive(Module, Debug)]
+pub struct DoubleConv {
+    a: ConvBn,
+    b: ConvBn,
+}
+
+impl DoubleConv {
+    fn new(cin: usize, cout: usize, device: &Device) -> DoubleConv {
+        DoubleConv { a: ConvBn::new(cin, cout, device), b: ConvBn::new(cout, cout, device) }
+    }
+    fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        let x = leaky_relu(self.a.forward(x), 0.01);
+        leaky_relu(self.b.forward(x), 0.01)
+    }
+}
+
+#[derive(Module, Debug)]
+pub struct Down {
+    pool: MaxPool2d,
+    conv: DoubleConv,
+}
+
+impl Down {
+    fn new(cin: usize, cout: usize, device: &Device) -> Down {
+        Down { pool: MaxPool2dConfig::new([2, 2]).init(), conv: DoubleConv::new(cin, cout, device) }
+    }
+    fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        self.conv.forward(self.pool.forward(x))
+    }
+}
+
+#[derive(Module, Debug)]
+pub struct Up {
+    up: ConvTranspose2d,
+    conv: DoubleConv,
+}
+
+impl Up {
+    /// `cin` channels come from below (upsampled to `cin`), `skip` from the same scale.
+    fn new(cin: usize, skip: usize, cout: usize, device: &Device) -> Up {
+        Up {
+            up: ConvTranspose2dConfig::new([cin, cin], [2, 2]).with_stride([2, 2]).init(device),
+            conv: DoubleConv::new(cin + skip, cout, device),
+        }
+    }
+    fn forward(&self, x: Tensor<4>, skip: Tensor<4>) -> Tensor<4> {
+        let x = self.up.forward(x);
+        self.conv.forward(Tensor::cat(vec![skip, x], 1))
+    }
+}
+
+/// The paper's U-Net with a residual connection from input to output.
+#[derive(Module, Debug)]
+pub struct UNet {
+    inc: DoubleConv,
+    down1: Down,
+    down2: Down,
+    down3: Down,
+    down4: Down,
+    up1: Up,
+    up2: Up,
+    up3: Up,
+    up4: Up,
+    outc: Conv2d,
+}
+
+impl UNet {
+    pub fn new(base: usize, device: &Device) -> UNet {
+        let b = base;
+        UNet {
+            inc: DoubleConv::new(3, b, device),
+            down1: Down::new(b, 2 * b, device),
+            down2: Down::new(2 * b, 4 * b, device),
+            down3: Down::new(4 * b, 8 * b, device),
+            down4: Down::new(8 * b, 8 * b, device),
+            up1: Up::new(8 * b, 8 * b, 4 * b, device),
+            up2: Up::new(4 * b, 4 * b, 2 * b, device),
+            up3: Up::new(2 * b, 2 * b, b, device),
+            up4: Up::new(b, b, b, device),
+            outc: Conv2dConfig::new([b, 3], [1, 1]).init(device),
+        }
+    }
+
+    /// Deblurred `[n, 3, h, w]` for any h, w.
+    pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        let [_, _, h, w] = x.dims();
+        let (ph, pw) = ((16 - h % 16) % 16, (16 - w % 16) % 16);
+        let xp = if ph + pw > 0 { x.clone().pad((0, pw, 0, ph), PadMode::Edge) } else { x.clone() };
+        let x1 = self.inc.forward(xp);
+        let x2 = self.down1.forward(x1.clone());
+        let x3 = self.down2.forward(x2.clone());
+        let x4 = self.down3.forward(x3.clone());
+        let x5 = self.down4.forward(x4.clone());
+        let y = self.up1.forward(x5, x4);
+        let y = self.up2.forward(y, x3);
+        let y = self.up3.forward(y, x2);
+        let y = self.up4.forward(y, x1);
+        let r = self.outc.forward(y);
+        let n = r.dims()[0];
+        let r = if ph + pw > 0 { r.slice([0..n, 0..3, 0..h, 0..w]) } else { r };
+        x + r
+    }
+}
+
+/// The shallow ablation model.
+#[derive(Module, Debug)]
+pub struct Shallow {
+    blocks: Vec<ConvBn>,
+    out: Conv2d,
+}
+
+impl Shallow {
+    pub fn new(width: usize, device: &Device) -> Shallow {
+        let blocks = (0..9).map(|i| ConvBn::new(if i == 0 { 3 } else { width }, width, device)).collect();
+        Shallow { blocks, out: Conv2dConfig::new([width, 3], [3, 3]).with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1)).init(device) }
+    }
+
+    pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        let mut y = x.clone();
+        for b in &self.blocks {
+            y = relu(b.forward(y));
+        }
+        x + self.out.forward(y)
+    }
+}
+
+/// Either network.
+#[derive(Module, Debug)]
+pub enum Net {
+    Unet(UNet),
+    Shallow(Shallow),
+}
+
+impl Net {
+    pub fn new(arch: Arch, device: &Device) -> Net {
+        match arch {
+            Arch::Unet { base } => Net::Unet(UNet::new(base, device)),
+            Arch::Shallow { width } => Net::Shallow(Shallow::new(width, device)),
+        }
+    }
+
+    pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        match self {
+            Net::Unet(m) => m.forward(x),
+            Net::Shallow(m) => m.forward(x),
+        }
+    }
+
+    /// The same network with its last layer set to zero: the identity map (the residual
+    /// connection passes the input through). Used to start training from "no change".
+    pub fn zero_last_layer(self, device: &Device) -> Net {
+        let zero = |c: Conv2d| -> Conv2d {
+            let [cout, cin, kh, kw] = c.weight.val().dims();
+            let mut cfg = Conv2dConfig::new([cin, cout], [kh, kw]).with_initializer(Initializer::Zeros);
+            if kh == 3 {
+                cfg = cfg.with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1));
+            }
+            cfg.init(device)
+        };
+        match self {
+            Net::Unet(mut m) => {
+                m.outc = zero(m.outc);
+                Net::Unet(m)
+            }
+            Net::Shallow(mut m) => {
+                m.out = zero(m.out);
+                Net::Shallow(m)
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn dev() -> Device {
+        Device::flex()
+    }
+
+    fn image(n: usize, h: usize, w: usize, seed: u64) -> Tensor<4> {
+        let v: Vec<f32> = (0..n * 3 * h * w).map(|i| crate::rng::unit(crate::rng::hash(&[seed, i as u64])) as f32).collect();
+        Tensor::<4>::from_data(burn::tensor::TensorData::new(v, [n, 3, h, w]), &dev())
+    }
+
+    #[test]
+    fn unet_keeps_the_shape_for_any_size() {
+        let m = UNet::new(4, &dev());
+        for (h, w) in [(16, 16), (37, 23), (5, 50)] {
+            assert_eq!(m.forward(image(2, h, w, 1)).dims(), [2, 3, h, w]);
+        }
+        let s = Shallow::new(4, &dev());
+        assert_eq!(s.forward(image(1, 9, 13, 2)).dims(), [1, 3, 9, 13]);
+    }
+
+    #[test]
+    fn zero_last_layer_makes_the_identity() {
+        for arch in [Arch::Unet { base: 4 }, Arch::Shallow { width: 4 }] {
+            let m = Net::new(arch, &dev()).zero_last_layer(&dev());
+            let x = image(1, 20, 24, 3);
+            let y = m.forward(x.clone());
+            let (a, b) = (x.into_data().try_to_vec::<f32>().unwrap(), y.into_data().try_to_vec::<f32>().unwrap());
+            assert!(a.iter().zip(&b).all(|(p, q)| (p - q).abs() < 1e-6), "{arch:?}");
+        }
+    }
+
+    #[test]
+    fn the_paper_unet_has_about_14_8_million_parameters() {
+        let n = UNet::new(64, &dev()).num_params();
+        assert!((14_000_000..16_000_000).contains(&n), "{n}");
+        // The shallow model has about 2% of that (paper: "just 2% of the weights").
+        let s = Shallow::new(32, &dev()).num_params();
+        assert!((s as f64 / n as f64) < 0.03, "{s} vs {n}");
+    }
+}

@@ -1,0 +1,139 @@
+//! Small line charts as PNG (training curves), drawn without a plotting library.
+
+use crate::io::{font, png as png_io, write_atomic};
+
+/// A canvas of planar RGB in [0, 1].
+pub struct Canvas {
+    pub w: usize,
+    pub h: usize,
+    pub px: [Vec<f32>; 3],
+}
+
+impl Canvas {
+    pub fn new(w: usize, h: usize, bg: [f32; 3]) -> Canvas {
+        Canvas { w, h, px: std::array::from_fn(|c| vec![bg[c]; w * h]) }
+    }
+
+    pub fn dot(&mut self, x: i64, y: i64, col: [f32; 3]) {
+        if x >= 0 && y >= 0 && (x as usize) < self.w && (y as usize) < self.h {
+            for c in 0..3 {
+                self.px[c][y as usize * self.w + x as usize] = col[c];
+            }
+        }
+    }
+
+    /// A 2-pixel line from (x0, y0) to (x1, y1).
+    pub fn line(&mut self, (x0, y0): (f64, f64), (x1, y1): (f64, f64), col: [f32; 3]) {
+        let n = ((x1 - x0).abs().max((y1 - y0).abs()) * 2.0).ceil().max(1.0) as usize;
+        for i in 0..=n {
+            let t = i as f64 / n as f64;
+            let (x, y) = (x0 + (x1 - x0) * t, y0 + (y1 - y0) * t);
+            self.dot(x.round() as i64, y.round() as i64, col);
+            self.dot(x.round() as i64, y.round() as i64 + 1, col);
+        }
+    }
+
+    pub fn text(&mut self, x: usize, y: usize, s: &str, col: [f32; 3]) {
+        font::draw_text(&mut self.px, self.w, x, y, s, 2, col);
+    }
+
+    pub fn to_rgb8(&self) -> Vec<u8> {
+        (0..self.w * self.h).flat_map(|i| [0, 1, 2].map(|c| (self.px[c][i].clamp(0.0, 1.0) * 255.0).round() as u8)).collect()
+    }
+
+    /// Writes the canvas as PNG (atomically).
+    ///
+    /// # Errors
+    /// The file cannot be written.
+    pub fn save(&self, path: &std::path::Path) -> crate::Result<()> {
+        let rgb = self.to_rgb8();
+        write_atomic(path, |w| png_io::write_rgb8(w, self.w, self.h, &rgb))
+    }
+}
+
+/// One series of (x, y) points with a name and a colour.
+pub struct Series<'a> {
+    pub name: &'a str,
+    pub points: Vec<(f64, f64)>,
+    pub color: [f32; 3],
+}
+
+fn fmt_tick(v: f64) -> String {
+    if v.abs() >= 100.0 || v == v.round() {
+        format!("{v:.0}")
+    } else if v.abs() >= 1.0 {
+        format!("{v:.1}")
+    } else {
+        format!("{v:.3}")
+    }
+}
+
+/// Draws a panel of series into `canvas` at (ox, oy) of size (pw, ph), with a title and
+/// min/max labels on both axes.
+pub fn panel(canvas: &mut Canvas, (ox, oy, pw, ph): (usize, usize, usize, usize), title: &str, series: &[Series]) {
+    let fg = [0.9, 0.9, 0.9];
+    let pts = series.iter().flat_map(|s| s.points.iter()).filter(|p| p.0.is_finite() && p.1.is_finite());
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for p in pts {
+        x0 = x0.min(p.0);
+        x1 = x1.max(p.0);
+        y0 = y0.min(p.1);
+        y1 = y1.max(p.1);
+    }
+    canvas.text(ox, oy, title, fg);
+    if x0 > x1 {
+        return;
+    }
+    if x1 == x0 {
+        x1 = x0 + 1.0;
+    }
+    if y1 == y0 {
+        y1 = y0 + 1.0;
+    }
+    let (left, top, bottom) = (ox + 80, oy + 24, oy + ph - 24);
+    let right = ox + pw - 10;
+    let to = |x: f64, y: f64| {
+        (left as f64 + (x - x0) / (x1 - x0) * (right - left) as f64, bottom as f64 - (y - y0) / (y1 - y0) * (bottom - top) as f64)
+    };
+    canvas.line((left as f64, top as f64), (left as f64, bottom as f64), fg);
+    canvas.line((left as f64, bottom as f64), (right as f64, bottom as f64), fg);
+    canvas.text(ox, top, &fmt_tick(y1), fg);
+    canvas.text(ox, bottom - 10, &fmt_tick(y0), fg);
+    canvas.text(left, bottom + 6, &fmt_tick(x0), fg);
+    let xl = fmt_tick(x1);
+    canvas.text(right.saturating_sub(font::text_width(&xl, 2)), bottom + 6, &xl, fg);
+    for (i, s) in series.iter().enumerate() {
+        for w in s.points.windows(2) {
+            canvas.line(to(w[0].0, w[0].1), to(w[1].0, w[1].1), s.color);
+        }
+        if s.points.len() == 1 {
+            let (x, y) = to(s.points[0].0, s.points[0].1);
+            canvas.line((x - 3.0, y), (x + 3.0, y), s.color);
+        }
+        canvas.text(left + 10 + i * 200, top + 4, s.name, s.color);
+    }
+}
+
+/// `curves.png`: the training loss (log10) and the validation PSNR against steps.
+///
+/// # Errors
+/// The file cannot be written.
+#[cfg(feature = "train")]
+pub fn training_curves(path: &std::path::Path, r: &crate::train::TrainReport) -> crate::Result<()> {
+    let mut c = Canvas::new(900, 640, [0.12, 0.12, 0.14]);
+    let loss = Series {
+        name: "LOG10 HUBER LOSS",
+        points: r.loss.iter().map(|p| (p.step as f64, p.loss.max(1e-12).log10())).collect(),
+        color: [0.95, 0.6, 0.2],
+    };
+    panel(&mut c, (10, 10, 880, 300), &format!("TRAINING LOSS ({})", r.arch.to_uppercase()), &[loss]);
+    let model =
+        Series { name: "MODEL", points: r.validation.iter().map(|v| (v.step as f64, v.model.psnr_rgb)).collect(), color: [0.3, 0.8, 0.4] };
+    let input = Series {
+        name: "BLURRED INPUT",
+        points: r.validation.iter().map(|v| (v.step as f64, v.input.psnr_rgb)).collect(),
+        color: [0.6, 0.6, 0.9],
+    };
+    panel(&mut c, (10, 330, 880, 300), "VALIDATION PSNR RGB (DB)", &[model, input]);
+    c.save(path)
+}

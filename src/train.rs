@@ -1,0 +1,743 @@
+//! `pipeline train`: the paper's U-Net or shallow model on (lq, gt) patch pairs from WebDataset
+//! shards, with Huber loss and Adam, validation PSNR/SSIM on inputs held apart by source video,
+//! safetensors checkpoints and exact resume.
+//!
+//! Determinism: the shard order, the shuffle buffer and the augmentations are functions of the
+//! seed and the step, so `--resume` continues with the data order the uninterrupted run would
+//! have had (it replays the sample stream up to the checkpoint).
+
+use crate::io::{png as png_io, tar, write_atomic};
+use crate::metrics;
+use crate::model::{Arch, Net};
+use crate::rng::{hash, hash_str, unit, Rng};
+use crate::{Error, Result};
+use burn::module::{Module, ModuleMapper, ModuleVisitor, Param, ParamId};
+use burn::nn::loss::{HuberLossConfig, Reduction};
+use burn::optim::{AdamConfig, GradientsParams};
+use burn::store::{ModuleSnapshot, SafetensorsStore};
+use burn::tensor::{Device, Tensor, TensorData};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DataConfig {
+    /// Shard files, folders of `.tar` files, or file-name globs.
+    pub shards: Vec<String>,
+    /// Share of the source inputs (videos) held apart for validation.
+    #[serde(default = "d_val_fraction")]
+    pub val_fraction: f64,
+    /// Samples held in the shuffle buffer.
+    #[serde(default = "d_shuffle")]
+    pub shuffle_buffer: usize,
+    /// Random flips and 90-degree rotations.
+    #[serde(default = "d_true")]
+    pub augment: bool,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LrSchedule {
+    Constant,
+    /// Linear warm-up, then cosine decay to `lr * lr_min_factor`.
+    Cosine,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OptimConfig {
+    #[serde(default = "d_steps")]
+    pub steps: usize,
+    #[serde(default = "d_batch")]
+    pub batch: usize,
+    #[serde(default = "d_lr")]
+    pub lr: f64,
+    #[serde(default = "d_schedule")]
+    pub schedule: LrSchedule,
+    #[serde(default = "d_warmup")]
+    pub warmup_steps: usize,
+    #[serde(default = "d_lr_min")]
+    pub lr_min_factor: f64,
+    /// Huber delta on the [0, 1] scale of encoded values.
+    #[serde(default = "d_delta")]
+    pub huber_delta: f64,
+    /// Start from the identity: the last layer zeroed, so the residual passes the input.
+    #[serde(default = "d_true")]
+    pub zero_init: bool,
+}
+
+impl Default for OptimConfig {
+    fn default() -> Self {
+        OptimConfig {
+            steps: d_steps(),
+            batch: d_batch(),
+            lr: d_lr(),
+            schedule: d_schedule(),
+            warmup_steps: d_warmup(),
+            lr_min_factor: d_lr_min(),
+            huber_delta: d_delta(),
+            zero_init: true,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ValidateConfig {
+    #[serde(default = "d_every")]
+    pub every: usize,
+    #[serde(default = "d_val_max")]
+    pub max_samples: usize,
+}
+
+impl Default for ValidateConfig {
+    fn default() -> Self {
+        ValidateConfig { every: d_every(), max_samples: d_val_max() }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputConfig {
+    pub dir: String,
+    /// Steps between checkpoints (the last step is always saved).
+    #[serde(default = "d_ckpt")]
+    pub checkpoint_every: usize,
+}
+
+/// A training file (`pipelines/train.toml`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainConfig {
+    #[serde(default)]
+    pub seed: u64,
+    pub model: Arch,
+    pub data: DataConfig,
+    #[serde(default)]
+    pub optim: OptimConfig,
+    #[serde(default)]
+    pub validate: ValidateConfig,
+    pub output: OutputConfig,
+}
+
+fn d_val_fraction() -> f64 {
+    0.2
+}
+fn d_shuffle() -> usize {
+    256
+}
+fn d_true() -> bool {
+    true
+}
+fn d_steps() -> usize {
+    200
+}
+fn d_batch() -> usize {
+    8
+}
+fn d_lr() -> f64 {
+    1e-3
+}
+fn d_schedule() -> LrSchedule {
+    LrSchedule::Cosine
+}
+fn d_warmup() -> usize {
+    20
+}
+fn d_lr_min() -> f64 {
+    0.1
+}
+fn d_delta() -> f64 {
+    0.02
+}
+fn d_every() -> usize {
+    50
+}
+fn d_val_max() -> usize {
+    64
+}
+fn d_ckpt() -> usize {
+    100
+}
+
+impl TrainConfig {
+    /// Every value error, each naming its key.
+    pub fn validate(&self) -> Vec<crate::optics::ConfigError> {
+        let mut c = crate::optics::config::Checker::new("");
+        match self.model {
+            Arch::Unet { base } => c.range_usize("model.base", base, 1, 256),
+            Arch::Shallow { width } => c.range_usize("model.width", width, 1, 1024),
+        }
+        if self.data.shards.is_empty() {
+            c.fail("data.shards", "names no shard");
+        }
+        c.range("data.val_fraction", self.data.val_fraction, 0.0, 0.9);
+        c.range_usize("data.shuffle_buffer", self.data.shuffle_buffer, 1, 1_000_000);
+        c.range_usize("optim.steps", self.optim.steps, 1, 100_000_000);
+        c.range_usize("optim.batch", self.optim.batch, 1, 4096);
+        c.range("optim.lr", self.optim.lr, 1e-8, 1.0);
+        c.range("optim.lr_min_factor", self.optim.lr_min_factor, 0.0, 1.0);
+        c.range("optim.huber_delta", self.optim.huber_delta, 1e-6, 10.0);
+        c.range_usize("validate.every", self.validate.every, 1, 100_000_000);
+        c.range_usize("output.checkpoint_every", self.output.checkpoint_every, 1, 100_000_000);
+        c.errors
+    }
+
+    /// Learning rate at `step` (0-based).
+    pub fn lr_at(&self, step: usize) -> f64 {
+        let o = &self.optim;
+        if step < o.warmup_steps {
+            return o.lr * (step + 1) as f64 / o.warmup_steps as f64;
+        }
+        match o.schedule {
+            LrSchedule::Constant => o.lr,
+            LrSchedule::Cosine => {
+                let t = (step - o.warmup_steps) as f64 / (o.steps.saturating_sub(o.warmup_steps)).max(1) as f64;
+                let min = o.lr * o.lr_min_factor;
+                min + 0.5 * (o.lr - min) * (1.0 + (std::f64::consts::PI * t.min(1.0)).cos())
+            }
+        }
+    }
+}
+
+/// One (lq, gt) pair read from a shard: 8-bit interleaved RGB.
+#[derive(Debug, Clone)]
+pub struct Pair {
+    pub key: String,
+    pub input_index: usize,
+    pub w: usize,
+    pub h: usize,
+    pub lq: Vec<u8>,
+    pub gt: Vec<u8>,
+}
+
+/// Reads every sample of one shard, checking each: a corrupt PNG, a missing member or a
+/// patch of another size is an error that names the shard and the key.
+///
+/// # Errors
+/// See above.
+pub fn read_shard(path: &Path, want: Option<(usize, usize)>) -> Result<Vec<Pair>> {
+    let f = std::fs::File::open(path).map_err(|e| Error::Io { path: path.to_path_buf(), source: e })?;
+    let members = tar::read_all(std::io::BufReader::new(f)).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+    let mut out: Vec<Pair> = Vec::new();
+    let mut cur: Option<(String, Option<Vec<u8>>, Option<Vec<u8>>, Option<usize>)> = None;
+    let bad = |key: &str, what: String| Error::Invalid(format!("{}: sample {key}: {what}", path.display()));
+    let finish = |c: (String, Option<Vec<u8>>, Option<Vec<u8>>, Option<usize>), out: &mut Vec<Pair>| -> Result<()> {
+        let (key, lq, gt, idx) = c;
+        let lq = lq.ok_or_else(|| bad(&key, "has no lq.png".into()))?;
+        let gt = gt.ok_or_else(|| bad(&key, "has no gt.png".into()))?;
+        let (w, h, lq) = png_io::read_rgb8(&lq).map_err(|e| bad(&key, format!("lq.png is not a readable PNG ({e})")))?;
+        let (gw, gh, gt) = png_io::read_rgb8(&gt).map_err(|e| bad(&key, format!("gt.png is not a readable PNG ({e})")))?;
+        if (w, h) != (gw, gh) {
+            return Err(bad(&key, format!("lq is {w}x{h} but gt is {gw}x{gh}")));
+        }
+        if let Some((ww, wh)) = want {
+            if (w, h) != (ww, wh) {
+                return Err(bad(&key, format!("patch is {w}x{h}, expected {ww}x{wh} like the others")));
+            }
+        }
+        out.push(Pair { key, input_index: idx.unwrap_or(0), w, h, lq, gt });
+        Ok(())
+    };
+    for (name, bytes) in members {
+        let (key, ext) = name.split_once('.').unwrap_or((name.as_str(), ""));
+        if cur.as_ref().is_none_or(|c| c.0 != key) {
+            if let Some(c) = cur.take() {
+                finish(c, &mut out)?;
+            }
+            cur = Some((key.to_string(), None, None, None));
+        }
+        let c = cur.as_mut().expect("set above");
+        match ext {
+            "lq.png" => c.1 = Some(bytes),
+            "gt.png" => c.2 = Some(bytes),
+            "json" => {
+                let v: serde_json::Value = serde_json::from_slice(&bytes).map_err(|e| bad(key, format!("json is not valid ({e})")))?;
+                c.3 = v["input_index"].as_u64().map(|i| i as usize);
+            }
+            _ => {}
+        }
+    }
+    if let Some(c) = cur.take() {
+        finish(c, &mut out)?;
+    }
+    Ok(out)
+}
+
+/// Train/validation split by source input (never by patch).
+pub fn is_validation(seed: u64, input_index: usize, fraction: f64) -> bool {
+    unit(hash(&[seed, input_index as u64, hash_str("val-split")])) < fraction
+}
+
+/// Flip or rotate an interleaved RGB square patch in place of `t` (0..8: the dihedral group).
+fn augment(img: &[u8], n: usize, t: u64) -> Vec<u8> {
+    let mut out = vec![0u8; img.len()];
+    for y in 0..n {
+        for x in 0..n {
+            let (mut sx, mut sy) = (x, y);
+            if t & 1 == 1 {
+                sx = n - 1 - sx;
+            }
+            if t & 2 == 2 {
+                sy = n - 1 - sy;
+            }
+            if t & 4 == 4 {
+                std::mem::swap(&mut sx, &mut sy);
+            }
+            out[(y * n + x) * 3..(y * n + x) * 3 + 3].copy_from_slice(&img[(sy * n + sx) * 3..(sy * n + sx) * 3 + 3]);
+        }
+    }
+    out
+}
+
+/// The training stream: shards in a seeded order per epoch, through a seeded shuffle buffer.
+struct Stream {
+    shards: Vec<PathBuf>,
+    seed: u64,
+    fraction: f64,
+    buffer: Vec<Pair>,
+    cap: usize,
+    epoch: u64,
+    queue: Vec<PathBuf>,
+    pending: std::collections::VecDeque<Pair>,
+    rng: Rng,
+    size: Option<(usize, usize)>,
+}
+
+impl Stream {
+    fn new(shards: Vec<PathBuf>, seed: u64, fraction: f64, cap: usize, size: Option<(usize, usize)>) -> Stream {
+        Stream {
+            shards,
+            seed,
+            fraction,
+            buffer: Vec::new(),
+            cap,
+            epoch: 0,
+            queue: Vec::new(),
+            pending: Default::default(),
+            rng: Rng::new(hash(&[seed, hash_str("shuffle")])),
+            size,
+        }
+    }
+
+    fn refill(&mut self) -> Result<bool> {
+        while self.pending.is_empty() {
+            if self.queue.is_empty() {
+                let mut order = self.shards.clone();
+                let mut r = Rng::new(hash(&[self.seed, self.epoch, hash_str("shard-order")]));
+                for i in (1..order.len()).rev() {
+                    order.swap(i, r.below(i + 1));
+                }
+                order.reverse();
+                self.queue = order;
+                self.epoch += 1;
+            }
+            let s = self.queue.pop().expect("refilled");
+            let pairs = read_shard(&s, self.size)?;
+            self.pending.extend(pairs.into_iter().filter(|p| !is_validation(self.seed, p.input_index, self.fraction)));
+            if self.pending.is_empty() && self.queue.is_empty() && self.epoch > 1000 {
+                return Ok(false);
+            }
+        }
+        Ok(true)
+    }
+
+    fn next(&mut self) -> Result<Pair> {
+        while self.buffer.len() < self.cap {
+            if !self.refill()? {
+                return Err(Error::Invalid("the shards hold no training sample (all inputs went to validation?)".into()));
+            }
+            let p = self.pending.pop_front().expect("refilled");
+            if self.size.is_none() {
+                self.size = Some((p.w, p.h));
+            }
+            self.buffer.push(p);
+        }
+        let i = self.rng.below(self.buffer.len());
+        Ok(self.buffer.swap_remove(i))
+    }
+}
+
+fn to_tensor(imgs: &[&[u8]], w: usize, h: usize, device: &Device) -> Tensor<4> {
+    let n = imgs.len();
+    let mut v = vec![0.0f32; n * 3 * h * w];
+    for (b, img) in imgs.iter().enumerate() {
+        for i in 0..h * w {
+            for c in 0..3 {
+                v[((b * 3 + c) * h * w) + i] = img[i * 3 + c] as f32 / 255.0;
+            }
+        }
+    }
+    Tensor::<4>::from_data(TensorData::new(v, [n, 3, h, w]), device)
+}
+
+/// 8-bit interleaved RGB images from a `[n, 3, h, w]` tensor of values in [0, 1].
+pub fn from_tensor(t: Tensor<4>) -> Vec<Vec<u8>> {
+    let [n, _, h, w] = t.dims();
+    let v = t.into_data().try_to_vec::<f32>().expect("f32 tensor");
+    (0..n)
+        .map(|b| {
+            let mut img = vec![0u8; h * w * 3];
+            for i in 0..h * w {
+                for c in 0..3 {
+                    img[i * 3 + c] = (v[(b * 3 + c) * h * w + i].clamp(0.0, 1.0) * 255.0).round() as u8;
+                }
+            }
+            img
+        })
+        .collect()
+}
+
+/// Mean quality of a model's outputs on validation pairs, and of the inputs themselves.
+pub fn evaluate(model: &Net, val: &[Pair], device: &Device) -> (metrics::Quality, metrics::Quality) {
+    let mut sums = [[0.0f64; 4]; 2];
+    for chunk in val.chunks(8) {
+        let (w, h) = (chunk[0].w, chunk[0].h);
+        let x = to_tensor(&chunk.iter().map(|p| p.lq.as_slice()).collect::<Vec<_>>(), w, h, device);
+        let outs = from_tensor(model.forward(x));
+        for (p, o) in chunk.iter().zip(outs) {
+            for (k, img) in [o.as_slice(), p.lq.as_slice()].iter().enumerate() {
+                let q = metrics::quality(img, &p.gt, w, h);
+                let v = [q.psnr_rgb.min(99.0), q.ssim_rgb, q.psnr_y.min(99.0), q.ssim_y];
+                for i in 0..4 {
+                    sums[k][i] += v[i];
+                }
+            }
+        }
+    }
+    let n = val.len().max(1) as f64;
+    let q = |s: [f64; 4]| metrics::Quality { psnr_rgb: s[0] / n, ssim_rgb: s[1] / n, psnr_y: s[2] / n, ssim_y: s[3] / n };
+    (q(sums[0]), q(sums[1]))
+}
+
+/// What `latest.json` in the output folder says.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Latest {
+    pub step: usize,
+    pub model: String,
+    pub optimizer: String,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct LossPoint {
+    pub step: usize,
+    pub loss: f64,
+    pub lr: f64,
+}
+
+#[derive(Debug, Clone, Serialize)]
+pub struct ValPoint {
+    pub step: usize,
+    pub model: metrics::Quality,
+    pub input: metrics::Quality,
+}
+
+/// `report.json` of a training run.
+#[derive(Debug, Clone, Serialize)]
+pub struct TrainReport {
+    pub version: &'static str,
+    pub arch: String,
+    pub parameters: usize,
+    pub steps: usize,
+    pub resumed_from: Option<usize>,
+    pub seconds: f64,
+    pub patches_per_s: f64,
+    pub train_inputs: Vec<usize>,
+    pub val_inputs: Vec<usize>,
+    pub val_samples: usize,
+    pub metrics_convention: &'static str,
+    pub loss: Vec<LossPoint>,
+    pub validation: Vec<ValPoint>,
+    pub config: TrainConfig,
+}
+
+/// Collects the ids of the trainable parameters in traversal order.
+struct IdCollector(Vec<u64>);
+
+impl ModuleVisitor for IdCollector {
+    fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
+        self.0.push(p.id.val());
+    }
+}
+
+/// Gives the parameters, in traversal order, the ids they had when the checkpoint was written:
+/// the optimizer state is keyed by parameter id, and a model loaded from safetensors gets
+/// fresh ids.
+struct IdSetter {
+    ids: Vec<u64>,
+    next: usize,
+}
+
+impl ModuleMapper for IdSetter {
+    fn map_float<const D: usize>(&mut self, mut p: Param<Tensor<D>>) -> Param<Tensor<D>> {
+        if let Some(&id) = self.ids.get(self.next) {
+            p.id = ParamId::from(id);
+        }
+        self.next += 1;
+        p
+    }
+}
+
+/// Saves the model (safetensors, config and step in the metadata) and the optimizer state.
+fn save_checkpoint(dir: &Path, model: &Net, optim_bytes: Vec<u8>, cfg: &TrainConfig, step: usize) -> Result<Latest> {
+    let name = format!("model-{step:07}.safetensors");
+    let path = dir.join(&name);
+    let mut store = SafetensorsStore::from_file(&path)
+        .metadata("pipeline_version", env!("CARGO_PKG_VERSION"))
+        .metadata("arch", serde_json::to_string(&cfg.model).expect("json"))
+        .metadata("step", step.to_string())
+        .metadata("seed", cfg.seed.to_string())
+        .metadata("input", "[n, 3, h, w] encoded sRGB in [0, 1]; output = input + residual")
+        .metadata("param_ids", {
+            let mut c = IdCollector(Vec::new());
+            model.visit(&mut c);
+            serde_json::to_string(&c.0).expect("json")
+        })
+        .overwrite(true);
+    model.save_into(&mut store).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+    let oname = format!("optim-{step:07}.bin");
+    write_atomic(&dir.join(&oname), |w| w.write_all(&optim_bytes))?;
+    let latest = Latest { step, model: name, optimizer: oname };
+    let bytes = serde_json::to_vec_pretty(&latest).expect("json");
+    write_atomic(&dir.join("latest.json"), |w| w.write_all(&bytes))?;
+    Ok(latest)
+}
+
+/// Loads a model file written by `pipeline train`, checking its architecture.
+///
+/// # Errors
+/// A missing or truncated file, or weights of another architecture (named).
+pub fn load_model(path: &Path, device: &Device) -> Result<(Net, Arch)> {
+    let bytes = std::fs::read(path).map_err(|e| Error::Io { path: path.to_path_buf(), source: e })?;
+    let arch = read_arch(&bytes).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+    let mut net = Net::new(arch, device);
+    let mut store = SafetensorsStore::from_bytes(Some(bytes));
+    let r = net.load_from(&mut store).map_err(|e| Error::Invalid(format!("{}: not loadable as {} ({e})", path.display(), arch.name())))?;
+    if !r.errors.is_empty() || !r.missing.is_empty() {
+        return Err(Error::Invalid(format!(
+            "{}: weights do not fit {} ({} missing, {} errors)",
+            path.display(),
+            arch.name(),
+            r.missing.len(),
+            r.errors.len()
+        )));
+    }
+    Ok((net, arch))
+}
+
+/// The `__metadata__` of a safetensors header.
+fn read_meta(bytes: &[u8]) -> std::result::Result<serde_json::Value, String> {
+    if bytes.len() < 8 {
+        return Err("truncated: no safetensors header".into());
+    }
+    let n = u64::from_le_bytes(bytes[..8].try_into().expect("8 bytes")) as usize;
+    let header = bytes.get(8..8 + n).ok_or("truncated safetensors header")?;
+    let v: serde_json::Value = serde_json::from_slice(header).map_err(|e| format!("bad safetensors header ({e})"))?;
+    Ok(v["__metadata__"].clone())
+}
+
+/// The `arch` entry of a safetensors header's metadata.
+fn read_arch(bytes: &[u8]) -> std::result::Result<Arch, String> {
+    let meta = read_meta(bytes)?;
+    let arch = meta["arch"].as_str().ok_or("no `arch` in the metadata: not a pipeline model")?;
+    serde_json::from_str(arch).map_err(|e| format!("unknown arch {arch:?} ({e})"))
+}
+
+/// Options of one `pipeline train` call.
+pub struct TrainOptions {
+    pub resume: bool,
+    pub progress: bool,
+    /// Stop after this step (tests of resume); None: run to `optim.steps`.
+    pub stop_after: Option<usize>,
+}
+
+/// Runs training.
+///
+/// # Errors
+/// Bad shards (named), an unwritable output folder, or a non-finite loss (naming the step; the
+/// last good checkpoint stays).
+pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
+    let errs = cfg.validate();
+    if !errs.is_empty() {
+        return Err(Error::Config(errs));
+    }
+    let t0 = Instant::now();
+    let dir = PathBuf::from(&cfg.output.dir);
+    std::fs::create_dir_all(&dir).map_err(|e| Error::Io { path: dir.clone(), source: e })?;
+    let shards = crate::config::expand_paths(&cfg.data.shards, &["tar"])?;
+    if shards.is_empty() {
+        return Err(Error::Invalid("data.shards: no .tar file found".into()));
+    }
+    // Validation samples, and which inputs went where.
+    let (mut val, mut train_inputs, mut val_inputs) = (Vec::new(), std::collections::BTreeSet::new(), std::collections::BTreeSet::new());
+    let mut size = None;
+    for s in &shards {
+        for p in read_shard(s, size)? {
+            size.get_or_insert((p.w, p.h));
+            if is_validation(cfg.seed, p.input_index, cfg.data.val_fraction) {
+                val_inputs.insert(p.input_index);
+                if val.len() < cfg.validate.max_samples {
+                    val.push(p);
+                }
+            } else {
+                train_inputs.insert(p.input_index);
+            }
+        }
+    }
+    if train_inputs.is_empty() {
+        return Err(Error::Invalid(format!(
+            "data: every input ({val_inputs:?}) went to validation; lower data.val_fraction or add inputs"
+        )));
+    }
+    let device = Device::flex().autodiff();
+    // Weight initialisation draws from burn's generator: seed it from the config.
+    device.seed(hash(&[cfg.seed, hash_str("init")]));
+    let mut model = Net::new(cfg.model, &device);
+    if cfg.optim.zero_init {
+        model = model.zero_last_layer(&device);
+    }
+    let mut optim = AdamConfig::new().init();
+    let mut start = 0;
+    if opts.resume {
+        let latest: Latest = serde_json::from_slice(
+            &std::fs::read(dir.join("latest.json")).map_err(|e| Error::Io { path: dir.join("latest.json"), source: e })?,
+        )
+        .map_err(|e| Error::Invalid(format!("{}: {e}", dir.join("latest.json").display())))?;
+        let mpath = dir.join(&latest.model);
+        let (net, _) = load_model(&mpath, &device)?;
+        let bytes = std::fs::read(&mpath).map_err(|e| Error::Io { path: mpath.clone(), source: e })?;
+        let ids: Vec<u64> = read_meta(&bytes)
+            .ok()
+            .and_then(|m| m["param_ids"].as_str().and_then(|s| serde_json::from_str(s).ok()))
+            .ok_or_else(|| Error::Invalid(format!("{}: no param_ids in the metadata; cannot resume the optimizer", mpath.display())))?;
+        model = net.map(&mut IdSetter { ids, next: 0 });
+        let ob = std::fs::read(dir.join(&latest.optimizer)).map_err(|e| Error::Io { path: dir.join(&latest.optimizer), source: e })?;
+        optim = AdamConfig::new()
+            .init()
+            .from_bytes(burn::tensor::Bytes::from_bytes_vec(ob))
+            .map_err(|e| Error::Invalid(format!("{}: {e:?}", latest.optimizer)))?;
+        start = latest.step;
+    }
+    let huber = HuberLossConfig::new(cfg.optim.huber_delta as f32).init();
+    let mut stream = Stream::new(shards, cfg.seed, cfg.data.val_fraction, cfg.data.shuffle_buffer, size);
+    // Replay the data order up to the resumed step.
+    for _ in 0..start * cfg.optim.batch {
+        stream.next()?;
+    }
+    let end = opts.stop_after.unwrap_or(cfg.optim.steps).min(cfg.optim.steps);
+    let bar = opts.progress.then(|| {
+        let b = indicatif::ProgressBar::new((end - start) as u64);
+        b.set_style(indicatif::ProgressStyle::with_template("train {bar:30} {pos}/{len} {msg}").expect("template"));
+        b
+    });
+    let (mut losses, mut vals) = (Vec::new(), Vec::new());
+    let t_train = Instant::now();
+    let mut last_line = Instant::now();
+    for step in start..end {
+        let batch: Vec<Pair> = (0..cfg.optim.batch).map(|_| stream.next()).collect::<Result<_>>()?;
+        let (w, h) = (batch[0].w, batch[0].h);
+        let aug = |img: &[u8], i: usize| -> Vec<u8> {
+            if cfg.data.augment && w == h {
+                augment(img, w, hash(&[cfg.seed, step as u64, i as u64, hash_str("augment")]) % 8)
+            } else {
+                img.to_vec()
+            }
+        };
+        let lqs: Vec<Vec<u8>> = batch.iter().enumerate().map(|(i, p)| aug(&p.lq, i)).collect();
+        let gts: Vec<Vec<u8>> = batch.iter().enumerate().map(|(i, p)| aug(&p.gt, i)).collect();
+        let x = to_tensor(&lqs.iter().map(|v| v.as_slice()).collect::<Vec<_>>(), w, h, &device);
+        let y = to_tensor(&gts.iter().map(|v| v.as_slice()).collect::<Vec<_>>(), w, h, &device);
+        let loss = huber.forward(model.forward(x), y, Reduction::Mean);
+        let lv: f64 = loss.clone().into_scalar::<f32>() as f64;
+        if !lv.is_finite() {
+            return Err(Error::Invalid(format!(
+                "step {}: the loss is {lv}; stopped. The last good checkpoint is listed in {}",
+                step + 1,
+                dir.join("latest.json").display()
+            )));
+        }
+        let lr = cfg.lr_at(step);
+        let grads = GradientsParams::from_grads(loss.backward(), &model);
+        model = optim.step(lr, model, grads);
+        losses.push(LossPoint { step: step + 1, loss: lv, lr });
+        let done = step + 1;
+        if done % cfg.validate.every == 0 || done == end {
+            if !val.is_empty() {
+                let (m, i) = evaluate(&model.valid(), &val, &device.clone().inner());
+                vals.push(ValPoint { step: done, model: m, input: i });
+            }
+        }
+        if done % cfg.output.checkpoint_every == 0 || done == end {
+            save_checkpoint(
+                &dir,
+                &model,
+                optim.clone().into_bytes().map_err(|e| Error::Invalid(format!("optimizer state: {e:?}")))?.to_vec(),
+                cfg,
+                done,
+            )?;
+        }
+        let rate = ((done - start) * cfg.optim.batch) as f64 / t_train.elapsed().as_secs_f64();
+        let msg = format!(
+            "loss {lv:.5} lr {lr:.2e} {rate:.1} patches/s{}",
+            vals.last().map_or(String::new(), |v| format!(" val PSNR {:.2}", v.model.psnr_rgb))
+        );
+        match &bar {
+            Some(b) => {
+                b.set_position((done - start) as u64);
+                b.set_message(msg);
+            }
+            None if last_line.elapsed().as_secs() >= 5 => {
+                eprintln!("train: step {done}/{end} {msg}");
+                last_line = Instant::now();
+            }
+            None => {}
+        }
+    }
+    if let Some(b) = &bar {
+        b.finish();
+    }
+    let secs = t0.elapsed().as_secs_f64();
+    let report = TrainReport {
+        version: env!("CARGO_PKG_VERSION"),
+        arch: cfg.model.name(),
+        parameters: model.num_params(),
+        steps: end,
+        resumed_from: opts.resume.then_some(start),
+        seconds: secs,
+        patches_per_s: ((end - start) * cfg.optim.batch) as f64 / t_train.elapsed().as_secs_f64().max(1e-9),
+        train_inputs: train_inputs.into_iter().collect(),
+        val_inputs: val_inputs.into_iter().collect(),
+        val_samples: val.len(),
+        metrics_convention: metrics::CONVENTION,
+        loss: losses,
+        validation: vals,
+        config: cfg.clone(),
+    };
+    let bytes = serde_json::to_vec_pretty(&report).expect("json");
+    write_atomic(&dir.join("report.json"), |w| w.write_all(&bytes))?;
+    crate::plot::training_curves(&dir.join("curves.png"), &report)?;
+    Ok(report)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lr_warms_up_then_decays_by_cosine() {
+        let cfg: TrainConfig = toml::from_str("[model]\ntype = \"shallow\"\nwidth = 4\n[data]\nshards = [\"x\"]\n[optim]\nsteps = 100\nwarmup_steps = 10\nlr = 1e-3\n[output]\ndir = \"x\"\n").unwrap();
+        assert!((cfg.lr_at(0) - 1e-4).abs() < 1e-12);
+        assert!((cfg.lr_at(10) - 1e-3).abs() < 1e-9);
+        assert!((cfg.lr_at(99) - 1e-4).abs() < 1e-6);
+        assert!(cfg.lr_at(50) < cfg.lr_at(20));
+    }
+
+    #[test]
+    fn augmentations_are_the_eight_symmetries_of_the_square() {
+        let img: Vec<u8> = (0..4 * 4 * 3).map(|i| i as u8).collect();
+        let all: std::collections::BTreeSet<Vec<u8>> = (0..8).map(|t| augment(&img, 4, t)).collect();
+        assert_eq!(all.len(), 8);
+        assert_eq!(augment(&img, 4, 0), img);
+    }
+}

@@ -1,0 +1,155 @@
+//! Training: real steps on real shards made by the stills pipeline.
+
+use crate::common::*;
+use burn::module::Module;
+use burn::tensor::{Device, Tensor, TensorData};
+use pipeline::train::{load_model, train, TrainConfig, TrainOptions};
+use std::path::{Path, PathBuf};
+
+/// Tiny shards: 4 procedural clips of 64x64, 2 windows each, 4 patches of 32 px per window.
+fn tiny_shards(name: &str) -> PathBuf {
+    let d = scratch(name);
+    let table = pipeline::config::load(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("pipelines/stills.toml"),
+        &[
+            "sources.stills.clips=4".into(),
+            "sources.stills.size=[64, 64]".into(),
+            "sources.stills.frames=18".into(),
+            "transforms.patches.size=32".into(),
+            "transforms.noise.sigma=1.0".into(),
+            format!("sinks.shards.dir={:?}", d.display().to_string()),
+        ],
+    )
+    .unwrap();
+    let plan = pipeline::config::plan(table, "tiny").unwrap();
+    pipeline::graph::run(&plan, &Default::default()).unwrap();
+    d
+}
+
+fn config(shards: &Path, out: &Path, extra: &str) -> TrainConfig {
+    let text = format!(
+        "seed = 1\n[model]\ntype = \"shallow\"\nwidth = 8\n[data]\nshards = [{:?}]\nval_fraction = 0.25\nshuffle_buffer = 16\n[optim]\nsteps = 50\nbatch = 4\nlr = 3e-3\nwarmup_steps = 2\n[validate]\nevery = 25\nmax_samples = 8\n[output]\ndir = {:?}\ncheckpoint_every = 3\n{extra}",
+        shards.display().to_string(),
+        out.display().to_string()
+    );
+    toml::from_str(&text).unwrap()
+}
+
+fn opts(stop_after: Option<usize>, resume: bool) -> TrainOptions {
+    TrainOptions { resume, progress: false, stop_after }
+}
+
+fn probe(dev: &Device) -> Tensor<4> {
+    let v: Vec<f32> = (0..3 * 24 * 24).map(|i| ((i * 13) % 97) as f32 / 97.0).collect();
+    Tensor::<4>::from_data(TensorData::new(v, [1, 3, 24, 24]), dev)
+}
+
+fn outputs(path: &Path) -> Vec<f32> {
+    let dev = Device::flex();
+    let (m, _) = load_model(path, &dev).unwrap();
+    m.valid().forward(probe(&dev)).into_data().try_to_vec::<f32>().unwrap()
+}
+
+/// Shards with exactly 4 samples (one clip, one window, 4 patches): a tiny fixed set.
+fn fixed_set(name: &str) -> PathBuf {
+    let d = scratch(name);
+    let table = pipeline::config::load(
+        &Path::new(env!("CARGO_MANIFEST_DIR")).join("pipelines/stills.toml"),
+        &[
+            "sources.stills.clips=1".into(),
+            "sources.stills.size=[64, 64]".into(),
+            "sources.stills.frames=9".into(),
+            "transforms.patches.size=32".into(),
+            "transforms.noise.sigma=1.0".into(),
+            format!("sinks.shards.dir={:?}", d.display().to_string()),
+        ],
+    )
+    .unwrap();
+    pipeline::graph::run(&pipeline::config::plan(table, "fixed").unwrap(), &Default::default()).unwrap();
+    d
+}
+
+#[test]
+fn the_loss_falls_over_50_steps_on_a_tiny_fixed_set() {
+    let shards = fixed_set("train_loss_shards");
+    let out = scratch("train_loss");
+    let mut cfg = config(&shards, &out, "");
+    cfg.data.val_fraction = 0.0;
+    cfg.data.augment = false;
+    cfg.model = pipeline::model::Arch::Shallow { width: 16 };
+    cfg.optim.lr = 1e-2;
+    let r = train(&cfg, &opts(None, false)).unwrap();
+    let first: f64 = r.loss[..5].iter().map(|p| p.loss).sum::<f64>() / 5.0;
+    let last: f64 = r.loss[45..].iter().map(|p| p.loss).sum::<f64>() / 5.0;
+    assert!(last < 0.7 * first, "loss {first} -> {last}: {:?}", r.loss.iter().map(|p| p.loss).collect::<Vec<_>>());
+    for f in ["report.json", "curves.png", "latest.json", "model-0000050.safetensors"] {
+        assert!(out.join(f).exists(), "{f}");
+    }
+}
+
+#[test]
+fn validation_is_held_apart_by_input_never_by_patch() {
+    let shards = tiny_shards("train_split_shards");
+    let out = scratch("train_split");
+    let r = train(&config(&shards, &out, ""), &opts(Some(4), false)).unwrap();
+    assert!(!r.val_inputs.is_empty() && !r.train_inputs.is_empty(), "{:?} {:?}", r.val_inputs, r.train_inputs);
+    assert!(r.val_inputs.iter().all(|v| !r.train_inputs.contains(v)), "an input in both sets");
+    let v = r.validation.last().unwrap();
+    assert!(v.model.psnr_rgb.is_finite() && v.input.psnr_rgb.is_finite());
+}
+
+#[test]
+fn save_then_load_gives_identical_outputs_and_resume_matches_an_uninterrupted_run() {
+    let shards = tiny_shards("train_resume_shards");
+    let (a, b) = (scratch("train_resume_a"), scratch("train_resume_b"));
+    train(&config(&shards, &a, ""), &opts(Some(6), false)).unwrap();
+    train(&config(&shards, &b, ""), &opts(Some(3), false)).unwrap();
+    train(&config(&shards, &b, ""), &opts(Some(6), true)).unwrap();
+    let (oa, ob) = (outputs(&a.join("model-0000006.safetensors")), outputs(&b.join("model-0000006.safetensors")));
+    let worst = oa.iter().zip(&ob).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+    assert!(worst < 1e-5, "resumed weights differ: {worst}");
+    // Loading twice gives the same numbers (and they are not the untrained identity).
+    assert_eq!(outputs(&a.join("model-0000006.safetensors")), oa);
+    let x = probe(&Device::flex()).into_data().try_to_vec::<f32>().unwrap();
+    assert!(oa.iter().zip(&x).any(|(p, q)| (p - q).abs() > 1e-4));
+}
+
+#[test]
+fn bad_shards_and_bad_model_files_are_named() {
+    let d = scratch("train_bad");
+    let good = tiny_shards("train_bad_shards");
+    let first = files(&good).into_iter().find(|f| f.ends_with(".tar")).unwrap();
+    let mut members = pipeline::io::tar::read_all(std::fs::File::open(good.join(&first)).unwrap()).unwrap();
+    // A corrupt PNG.
+    let key = members[0].0.split('.').next().unwrap().to_string();
+    members[0].1.truncate(40);
+    let corrupt = d.join("corrupt.tar");
+    let mut buf = Vec::new();
+    for (n, b) in &members {
+        pipeline::io::tar::append(&mut buf, n, b).unwrap();
+    }
+    pipeline::io::tar::finish(&mut buf).unwrap();
+    std::fs::write(&corrupt, buf).unwrap();
+    let e = pipeline::train::read_shard(&corrupt, None).unwrap_err().to_string();
+    assert!(e.contains("corrupt.tar") && e.contains(&key) && e.contains("lq.png"), "{e}");
+    // A patch of another size than the rest.
+    let e = pipeline::train::read_shard(&good.join(&first), Some((64, 64))).unwrap_err().to_string();
+    assert!(e.contains(&first) && e.contains("expected 64x64"), "{e}");
+    // A model of another architecture, and a truncated model file.
+    let out = scratch("train_bad_model");
+    train(&config(&good, &out, ""), &opts(Some(3), false)).unwrap();
+    let model = out.join("model-0000003.safetensors");
+    let bytes = std::fs::read(&model).unwrap();
+    let cut = d.join("cut.safetensors");
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    assert!(load_model(&cut, &Device::flex()).unwrap_err().to_string().contains("cut.safetensors"));
+    let other = d.join("other.safetensors");
+    // Same file, but the metadata says width 9: the weights no longer fit.
+    let pat = b"width\\\":8";
+    let at = bytes.windows(pat.len()).position(|w| w == pat).expect("arch in the metadata");
+    let mut other_bytes = bytes.clone();
+    other_bytes[at + pat.len() - 1] = b'9';
+    std::fs::write(&other, other_bytes).unwrap();
+    let e = load_model(&other, &Device::flex()).unwrap_err().to_string();
+    assert!(e.contains("other.safetensors") && e.contains("shallow-9"), "{e}");
+}
