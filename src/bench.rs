@@ -251,3 +251,96 @@ pub fn generate(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> c
         rows,
     })
 }
+
+/// One model's speed in `bench train`.
+#[cfg(feature = "train")]
+#[derive(Debug, serde::Serialize)]
+pub struct ModelSpeed {
+    pub model: String,
+    pub parameters: usize,
+    pub batch: usize,
+    pub train_patches_per_s_median: f64,
+    pub forward_ms_per_patch_median: f64,
+    pub torch: Option<serde_json::Value>,
+}
+
+/// `bench train`: training step and forward speed per 128x128 patch of the shipped
+/// architectures, beside PyTorch on the same architectures when torch is installed
+/// (`benches/torch_models.py`).
+#[cfg(feature = "train")]
+pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize) -> crate::Result<Vec<ModelSpeed>> {
+    use burn::module::Module;
+    use burn::nn::loss::{HuberLossConfig, Reduction};
+    use burn::optim::{AdamConfig, GradientsParams};
+    use burn::tensor::{Device, Tensor, TensorData};
+    let torch = std::process::Command::new("python3").args(["-c", "import torch"]).status().map(|s| s.success()).unwrap_or(false);
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/torch_models.py");
+    let mut out = Vec::new();
+    for &arch in archs {
+        let device = Device::flex().autodiff();
+        device.seed(7);
+        let mut model = crate::model::Net::new(arch, &device);
+        let mut optim = AdamConfig::new().init();
+        let huber = HuberLossConfig::new(0.02).init();
+        let data = |n: usize, dev: &Device| {
+            let v: Vec<f32> = (0..n * 3 * 128 * 128).map(|i| ((i * 7919) % 1000) as f32 / 1000.0).collect();
+            Tensor::<4>::from_data(TensorData::new(v, [n, 3, 128, 128]), dev)
+        };
+        let mut steps = Vec::new();
+        for r in 0..repeats + 1 {
+            let t = Instant::now();
+            let loss = huber.forward(model.forward(data(batch, &device)), data(batch, &device), Reduction::Mean);
+            let grads = GradientsParams::from_grads(loss.backward(), &model);
+            model = optim.step(1e-4, model, grads);
+            if r > 0 {
+                steps.push(t.elapsed().as_secs_f64());
+            }
+        }
+        let valid = model.valid();
+        let dev = device.clone().inner();
+        let mut fwd = Vec::new();
+        for r in 0..repeats + 1 {
+            let t = Instant::now();
+            let y = valid.forward(data(1, &dev));
+            std::hint::black_box(y.into_data());
+            if r > 0 {
+                fwd.push(t.elapsed().as_secs_f64() * 1e3);
+            }
+        }
+        let step = median(&mut steps);
+        let torch_row = if torch && script.exists() {
+            let (kind, width) = match arch {
+                crate::model::Arch::Unet { base } => ("unet", base),
+                crate::model::Arch::Shallow { width } => ("shallow", width),
+            };
+            std::process::Command::new("python3")
+                .arg(&script)
+                .args([kind, &width.to_string(), &batch.to_string(), &repeats.to_string()])
+                .output()
+                .ok()
+                .and_then(|o| serde_json::from_slice(&o.stdout).ok())
+        } else {
+            None
+        };
+        let row = ModelSpeed {
+            model: arch.name(),
+            parameters: model.num_params(),
+            batch,
+            train_patches_per_s_median: batch as f64 / step,
+            forward_ms_per_patch_median: median(&mut fwd),
+            torch: torch_row,
+        };
+        eprintln!(
+            "bench: {}: {:.2} patches/s training (batch {batch}), forward {:.1} ms per 128x128 patch{}",
+            row.model,
+            row.train_patches_per_s_median,
+            row.forward_ms_per_patch_median,
+            match &row.torch {
+                Some(t) => format!("; torch {}", t),
+                None => "; torch not installed, no comparison".into(),
+            }
+        );
+        out.push(row);
+    }
+    Ok(out)
+}

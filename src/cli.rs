@@ -99,6 +99,20 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u16).range(1..=100))]
         repeats: u16,
     },
+    /// Training step and forward speed per 128x128 patch of the shallow model and the U-Net,
+    /// beside PyTorch on the same architectures when torch is installed.
+    #[cfg(feature = "train")]
+    Train {
+        /// Patches per training step.
+        #[arg(long, default_value_t = 4)]
+        batch: usize,
+        /// Repeats; the median is reported.
+        #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u16).range(1..=100))]
+        repeats: u16,
+        /// Also the paper's full-width U-Net (base 64), which is slow on a CPU.
+        #[arg(long)]
+        full: bool,
+    },
 }
 
 /// Options shared by the commands that run a pipeline.
@@ -433,6 +447,17 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
                 }])
                 .into());
             }
+            Ok(())
+        }
+        #[cfg(feature = "train")]
+        Command::Bench(BenchCommand::Train { batch, repeats, full }) => {
+            use crate::model::Arch;
+            let mut archs = vec![Arch::Shallow { width: 32 }, Arch::Unet { base: 16 }];
+            if full {
+                archs.push(Arch::Unet { base: 64 });
+            }
+            let r = crate::bench::train(&archs, batch, repeats as usize)?;
+            println!("{}", serde_json::to_string_pretty(&r)?);
             Ok(())
         }
         Command::Bench(BenchCommand::Generate { width, height, fps, seconds, repeats }) => {

@@ -256,6 +256,9 @@ pub enum SinkConfig {
     Shards(ShardsConfig),
     Frames(FramesConfig),
     Blackhole(BlackholeConfig),
+    /// Train a network on the stream (feature `train`).
+    #[cfg(feature = "train")]
+    Trainer(crate::train::TrainerSinkConfig),
 }
 
 /// `[run]`: how the graph runs.
@@ -362,6 +365,8 @@ impl Plan {
             SinkConfig::Shards(s) => PathBuf::from(&s.dir),
             SinkConfig::Frames(f) => PathBuf::from(&f.dir),
             SinkConfig::Blackhole(b) => PathBuf::from(&b.dir),
+            #[cfg(feature = "train")]
+            SinkConfig::Trainer(t) => PathBuf::from(&t.dir),
         }
     }
     pub fn set_out_dir(&mut self, dir: &Path) {
@@ -370,6 +375,8 @@ impl Plan {
             SinkConfig::Shards(s) => s.dir = d,
             SinkConfig::Frames(f) => f.dir = d,
             SinkConfig::Blackhole(b) => b.dir = d,
+            #[cfg(feature = "train")]
+            SinkConfig::Trainer(t) => t.dir = d,
         }
     }
 }
@@ -448,6 +455,8 @@ fn sink_inputs(s: &SinkConfig) -> &[String] {
         SinkConfig::Shards(c) => &c.inputs,
         SinkConfig::Frames(c) => &c.inputs,
         SinkConfig::Blackhole(c) => &c.inputs,
+        #[cfg(feature = "train")]
+        SinkConfig::Trainer(c) => &c.inputs,
     }
 }
 
@@ -524,6 +533,12 @@ fn check_sink(name: &str, s: &SinkConfig) -> Vec<ConfigError> {
             }
         }
         SinkConfig::Frames(_) | SinkConfig::Blackhole(_) => {}
+        #[cfg(feature = "train")]
+        SinkConfig::Trainer(t) => {
+            for e in t.to_train_config(0).validate() {
+                c.fail(&e.key, e.message);
+            }
+        }
     }
     c.errors
 }

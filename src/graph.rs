@@ -211,7 +211,7 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
     let manifest_name = Manifest::file_name(opts.task_index, opts.task_count);
     let manifest = match plan.sink() {
         SinkConfig::Shards(_) => Manifest::load(&out_dir, &manifest_name)?,
-        SinkConfig::Frames(_) | SinkConfig::Blackhole(_) => None,
+        _ => None,
     };
     let done = completed(&manifest);
     let mut skipped = Vec::new();
@@ -323,6 +323,8 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
             StagePlan::Sink(SinkConfig::Frames(f)) => {
                 sink = Some((name.clone(), Box::new(Frames::new(out_dir.clone(), f.format, counters.clone()))))
             }
+            #[cfg(feature = "train")]
+            StagePlan::Sink(SinkConfig::Trainer(t)) => sink = Some((name.clone(), Box::new(crate::train::TrainerSink::new(t, plan.seed)?))),
             StagePlan::Sink(SinkConfig::Blackhole(_)) => {
                 sink = Some((name.clone(), Box::new(Blackhole { counters: counters.clone(), samples: 0, failed: Vec::new() })))
             }
@@ -394,13 +396,20 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
             let sink = &mut sink;
             s.spawn(move || {
                 let mut t = Timing::new();
+                let mut satisfied = false;
                 while let Some(item) = recv(&rx, &stop, &mut t) {
                     if let Err(e) = sink.consume(item) {
                         record(&first, &stop, &name, e);
                         break;
                     }
+                    if !sink.wants_more() {
+                        // Done early (a trainer at its last step): stop the sources, finish.
+                        satisfied = true;
+                        stop.store(true, Ordering::Relaxed);
+                        break;
+                    }
                 }
-                if stop.load(Ordering::Relaxed) {
+                if stop.load(Ordering::Relaxed) && !satisfied {
                     sink.abort();
                 } else {
                     match sink.finish() {
@@ -460,13 +469,18 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
         interrupted,
         config: serde_json::to_value(&plan.resolved).unwrap_or(serde_json::Value::Null),
     };
-    write_report(&out_dir, opts, &report)?;
+    // A trainer sink writes its own report.json; the generation report then goes beside it.
+    #[cfg(feature = "train")]
+    let stem = if matches!(plan.sink(), SinkConfig::Trainer(_)) { "generate-report" } else { "report" };
+    #[cfg(not(feature = "train"))]
+    let stem = "report";
+    write_report(&out_dir, opts, stem, &report)?;
     Ok(Outcome { report, out_dir })
 }
 
-fn write_report(dir: &Path, opts: &RunOptions, r: &Report) -> Result<()> {
+fn write_report(dir: &Path, opts: &RunOptions, stem: &str, r: &Report) -> Result<()> {
     let name =
-        if opts.task_count > 1 { format!("report-{:05}-of-{:05}.json", opts.task_index, opts.task_count) } else { "report.json".into() };
+        if opts.task_count > 1 { format!("{stem}-{:05}-of-{:05}.json", opts.task_index, opts.task_count) } else { format!("{stem}.json") };
     let bytes = serde_json::to_vec_pretty(r).expect("json");
     crate::io::write_atomic(&dir.join(name), |w| w.write_all(&bytes))
 }

@@ -552,90 +552,121 @@ pub struct TrainOptions {
     pub stop_after: Option<usize>,
 }
 
-/// Runs training.
-///
-/// # Errors
-/// Bad shards (named), an unwritable output folder, or a non-finite loss (naming the step; the
-/// last good checkpoint stays).
-pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
-    let errs = cfg.validate();
-    if !errs.is_empty() {
-        return Err(Error::Config(errs));
+/// The training state: model, optimizer, schedule, history. Fed batches by [`train`] (from
+/// shards) or by the `trainer` sink (straight from the generator).
+pub struct Trainer {
+    pub cfg: TrainConfig,
+    dir: PathBuf,
+    device: Device,
+    model: Net,
+    optim: burn::optim::ModuleOptimizer,
+    huber: burn::nn::loss::HuberLoss,
+    pub step: usize,
+    start: usize,
+    end: usize,
+    pub val: Vec<Pair>,
+    pub train_inputs: std::collections::BTreeSet<usize>,
+    pub val_inputs: std::collections::BTreeSet<usize>,
+    losses: Vec<LossPoint>,
+    vals: Vec<ValPoint>,
+    t0: Instant,
+    t_train: Instant,
+    last_line: Instant,
+    bar: Option<indicatif::ProgressBar>,
+}
+
+impl Trainer {
+    /// A fresh model (or the checkpoint in `output.dir` with `resume`).
+    ///
+    /// # Errors
+    /// Bad config values (all named), an unwritable output folder, an unreadable checkpoint.
+    pub fn new(cfg: &TrainConfig, opts: &TrainOptions) -> Result<Trainer> {
+        let errs = cfg.validate();
+        if !errs.is_empty() {
+            return Err(Error::Config(errs));
+        }
+        let dir = PathBuf::from(&cfg.output.dir);
+        std::fs::create_dir_all(&dir).map_err(|e| Error::Io { path: dir.clone(), source: e })?;
+        let device = Device::flex().autodiff();
+        // Weight initialisation draws from burn's generator: seed it from the config.
+        device.seed(hash(&[cfg.seed, hash_str("init")]));
+        let mut model = Net::new(cfg.model, &device);
+        if cfg.optim.zero_init {
+            model = model.zero_last_layer(&device);
+        }
+        let mut optim = AdamConfig::new().init();
+        let mut start = 0;
+        if opts.resume {
+            let lp = dir.join("latest.json");
+            let latest: Latest = serde_json::from_slice(&std::fs::read(&lp).map_err(|e| Error::Io { path: lp.clone(), source: e })?)
+                .map_err(|e| Error::Invalid(format!("{}: {e}", lp.display())))?;
+            let mpath = dir.join(&latest.model);
+            let (net, _) = load_model(&mpath, &device)?;
+            let bytes = std::fs::read(&mpath).map_err(|e| Error::Io { path: mpath.clone(), source: e })?;
+            let ids: Vec<u64> = read_meta(&bytes)
+                .ok()
+                .and_then(|m| m["param_ids"].as_str().and_then(|s| serde_json::from_str(s).ok()))
+                .ok_or_else(|| Error::Invalid(format!("{}: no param_ids in the metadata; cannot resume the optimizer", mpath.display())))?;
+            model = net.map(&mut IdSetter { ids, next: 0 });
+            let ob = std::fs::read(dir.join(&latest.optimizer)).map_err(|e| Error::Io { path: dir.join(&latest.optimizer), source: e })?;
+            optim = AdamConfig::new()
+                .init()
+                .from_bytes(burn::tensor::Bytes::from_bytes_vec(ob))
+                .map_err(|e| Error::Invalid(format!("{}: {e:?}", latest.optimizer)))?;
+            start = latest.step;
+        }
+        let end = opts.stop_after.unwrap_or(cfg.optim.steps).min(cfg.optim.steps);
+        let bar = opts.progress.then(|| {
+            let b = indicatif::ProgressBar::new(end.saturating_sub(start) as u64);
+            b.set_style(indicatif::ProgressStyle::with_template("train {bar:30} {pos}/{len} {msg}").expect("template"));
+            b
+        });
+        Ok(Trainer {
+            cfg: cfg.clone(),
+            dir,
+            device,
+            model,
+            optim,
+            huber: HuberLossConfig::new(cfg.optim.huber_delta as f32).init(),
+            step: start,
+            start,
+            end,
+            val: Vec::new(),
+            train_inputs: Default::default(),
+            val_inputs: Default::default(),
+            losses: Vec::new(),
+            vals: Vec::new(),
+            t0: Instant::now(),
+            t_train: Instant::now(),
+            last_line: Instant::now(),
+            bar,
+        })
     }
-    let t0 = Instant::now();
-    let dir = PathBuf::from(&cfg.output.dir);
-    std::fs::create_dir_all(&dir).map_err(|e| Error::Io { path: dir.clone(), source: e })?;
-    let shards = crate::config::expand_paths(&cfg.data.shards, &["tar"])?;
-    if shards.is_empty() {
-        return Err(Error::Invalid("data.shards: no .tar file found".into()));
+
+    /// True once the last step is done.
+    pub fn done(&self) -> bool {
+        self.step >= self.end
     }
-    // Validation samples, and which inputs went where.
-    let (mut val, mut train_inputs, mut val_inputs) = (Vec::new(), std::collections::BTreeSet::new(), std::collections::BTreeSet::new());
-    let mut size = None;
-    for s in &shards {
-        for p in read_shard(s, size)? {
-            size.get_or_insert((p.w, p.h));
-            if is_validation(cfg.seed, p.input_index, cfg.data.val_fraction) {
-                val_inputs.insert(p.input_index);
-                if val.len() < cfg.validate.max_samples {
-                    val.push(p);
-                }
-            } else {
-                train_inputs.insert(p.input_index);
-            }
+
+    /// Files a sample under training or validation by its source input; true if it is for
+    /// training.
+    pub fn admit(&mut self, p: &Pair) -> bool {
+        if is_validation(self.cfg.seed, p.input_index, self.cfg.data.val_fraction) {
+            self.val_inputs.insert(p.input_index);
+            false
+        } else {
+            self.train_inputs.insert(p.input_index);
+            true
         }
     }
-    if train_inputs.is_empty() {
-        return Err(Error::Invalid(format!(
-            "data: every input ({val_inputs:?}) went to validation; lower data.val_fraction or add inputs"
-        )));
-    }
-    let device = Device::flex().autodiff();
-    // Weight initialisation draws from burn's generator: seed it from the config.
-    device.seed(hash(&[cfg.seed, hash_str("init")]));
-    let mut model = Net::new(cfg.model, &device);
-    if cfg.optim.zero_init {
-        model = model.zero_last_layer(&device);
-    }
-    let mut optim = AdamConfig::new().init();
-    let mut start = 0;
-    if opts.resume {
-        let latest: Latest = serde_json::from_slice(
-            &std::fs::read(dir.join("latest.json")).map_err(|e| Error::Io { path: dir.join("latest.json"), source: e })?,
-        )
-        .map_err(|e| Error::Invalid(format!("{}: {e}", dir.join("latest.json").display())))?;
-        let mpath = dir.join(&latest.model);
-        let (net, _) = load_model(&mpath, &device)?;
-        let bytes = std::fs::read(&mpath).map_err(|e| Error::Io { path: mpath.clone(), source: e })?;
-        let ids: Vec<u64> = read_meta(&bytes)
-            .ok()
-            .and_then(|m| m["param_ids"].as_str().and_then(|s| serde_json::from_str(s).ok()))
-            .ok_or_else(|| Error::Invalid(format!("{}: no param_ids in the metadata; cannot resume the optimizer", mpath.display())))?;
-        model = net.map(&mut IdSetter { ids, next: 0 });
-        let ob = std::fs::read(dir.join(&latest.optimizer)).map_err(|e| Error::Io { path: dir.join(&latest.optimizer), source: e })?;
-        optim = AdamConfig::new()
-            .init()
-            .from_bytes(burn::tensor::Bytes::from_bytes_vec(ob))
-            .map_err(|e| Error::Invalid(format!("{}: {e:?}", latest.optimizer)))?;
-        start = latest.step;
-    }
-    let huber = HuberLossConfig::new(cfg.optim.huber_delta as f32).init();
-    let mut stream = Stream::new(shards, cfg.seed, cfg.data.val_fraction, cfg.data.shuffle_buffer, size);
-    // Replay the data order up to the resumed step.
-    for _ in 0..start * cfg.optim.batch {
-        stream.next()?;
-    }
-    let end = opts.stop_after.unwrap_or(cfg.optim.steps).min(cfg.optim.steps);
-    let bar = opts.progress.then(|| {
-        let b = indicatif::ProgressBar::new((end - start) as u64);
-        b.set_style(indicatif::ProgressStyle::with_template("train {bar:30} {pos}/{len} {msg}").expect("template"));
-        b
-    });
-    let (mut losses, mut vals) = (Vec::new(), Vec::new());
-    let t_train = Instant::now();
-    let mut last_line = Instant::now();
-    for step in start..end {
-        let batch: Vec<Pair> = (0..cfg.optim.batch).map(|_| stream.next()).collect::<Result<_>>()?;
+
+    /// One optimisation step on `batch`, then validation and checkpoint when due.
+    ///
+    /// # Errors
+    /// A non-finite loss (naming the step), or a checkpoint that cannot be written.
+    pub fn train_step(&mut self, batch: &[Pair]) -> Result<()> {
+        let cfg = &self.cfg;
+        let step = self.step;
         let (w, h) = (batch[0].w, batch[0].h);
         let aug = |img: &[u8], i: usize| -> Vec<u8> {
             if cfg.data.augment && w == h {
@@ -646,78 +677,256 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
         };
         let lqs: Vec<Vec<u8>> = batch.iter().enumerate().map(|(i, p)| aug(&p.lq, i)).collect();
         let gts: Vec<Vec<u8>> = batch.iter().enumerate().map(|(i, p)| aug(&p.gt, i)).collect();
-        let x = to_tensor(&lqs.iter().map(|v| v.as_slice()).collect::<Vec<_>>(), w, h, &device);
-        let y = to_tensor(&gts.iter().map(|v| v.as_slice()).collect::<Vec<_>>(), w, h, &device);
-        let loss = huber.forward(model.forward(x), y, Reduction::Mean);
+        let x = to_tensor(&lqs.iter().map(|v| v.as_slice()).collect::<Vec<_>>(), w, h, &self.device);
+        let y = to_tensor(&gts.iter().map(|v| v.as_slice()).collect::<Vec<_>>(), w, h, &self.device);
+        let loss = self.huber.forward(self.model.forward(x), y, Reduction::Mean);
         let lv: f64 = loss.clone().into_scalar::<f32>() as f64;
         if !lv.is_finite() {
             return Err(Error::Invalid(format!(
                 "step {}: the loss is {lv}; stopped. The last good checkpoint is listed in {}",
                 step + 1,
-                dir.join("latest.json").display()
+                self.dir.join("latest.json").display()
             )));
         }
         let lr = cfg.lr_at(step);
-        let grads = GradientsParams::from_grads(loss.backward(), &model);
-        model = optim.step(lr, model, grads);
-        losses.push(LossPoint { step: step + 1, loss: lv, lr });
-        let done = step + 1;
-        if done % cfg.validate.every == 0 || done == end {
-            if !val.is_empty() {
-                let (m, i) = evaluate(&model.valid(), &val, &device.clone().inner());
-                vals.push(ValPoint { step: done, model: m, input: i });
-            }
+        let grads = GradientsParams::from_grads(loss.backward(), &self.model);
+        let model = std::mem::replace(&mut self.model, Net::new(Arch::Shallow { width: 1 }, &self.device));
+        self.model = self.optim.step(lr, model, grads);
+        self.losses.push(LossPoint { step: step + 1, loss: lv, lr });
+        self.step += 1;
+        let done = self.step;
+        if (done % cfg.validate.every == 0 || done == self.end) && !self.val.is_empty() {
+            let (m, i) = evaluate(&self.model.valid(), &self.val, &self.device.clone().inner());
+            self.vals.push(ValPoint { step: done, model: m, input: i });
         }
-        if done % cfg.output.checkpoint_every == 0 || done == end {
-            save_checkpoint(
-                &dir,
-                &model,
-                optim.clone().into_bytes().map_err(|e| Error::Invalid(format!("optimizer state: {e:?}")))?.to_vec(),
-                cfg,
-                done,
-            )?;
+        if done % cfg.output.checkpoint_every == 0 || done == self.end {
+            let ob = self.optim.clone().into_bytes().map_err(|e| Error::Invalid(format!("optimizer state: {e:?}")))?.to_vec();
+            save_checkpoint(&self.dir, &self.model, ob, cfg, done)?;
         }
-        let rate = ((done - start) * cfg.optim.batch) as f64 / t_train.elapsed().as_secs_f64();
+        let rate = ((done - self.start) * batch.len()) as f64 / self.t_train.elapsed().as_secs_f64();
         let msg = format!(
             "loss {lv:.5} lr {lr:.2e} {rate:.1} patches/s{}",
-            vals.last().map_or(String::new(), |v| format!(" val PSNR {:.2}", v.model.psnr_rgb))
+            self.vals.last().map_or(String::new(), |v| format!(" val PSNR {:.2}", v.model.psnr_rgb))
         );
-        match &bar {
+        match &self.bar {
             Some(b) => {
-                b.set_position((done - start) as u64);
+                b.set_position((done - self.start) as u64);
                 b.set_message(msg);
             }
-            None if last_line.elapsed().as_secs() >= 5 => {
-                eprintln!("train: step {done}/{end} {msg}");
-                last_line = Instant::now();
+            None if self.last_line.elapsed().as_secs() >= 5 => {
+                eprintln!("train: step {done}/{} {msg}", self.end);
+                self.last_line = Instant::now();
             }
             None => {}
         }
+        Ok(())
     }
-    if let Some(b) = &bar {
-        b.finish();
+
+    /// Writes `report.json` and `curves.png`.
+    ///
+    /// # Errors
+    /// They cannot be written.
+    pub fn finish(self, resumed: bool) -> Result<TrainReport> {
+        if let Some(b) = &self.bar {
+            b.finish();
+        }
+        let report = TrainReport {
+            version: env!("CARGO_PKG_VERSION"),
+            arch: self.cfg.model.name(),
+            parameters: self.model.num_params(),
+            steps: self.step,
+            resumed_from: resumed.then_some(self.start),
+            seconds: self.t0.elapsed().as_secs_f64(),
+            patches_per_s: ((self.step - self.start) * self.cfg.optim.batch) as f64 / self.t_train.elapsed().as_secs_f64().max(1e-9),
+            train_inputs: self.train_inputs.into_iter().collect(),
+            val_inputs: self.val_inputs.into_iter().collect(),
+            val_samples: self.val.len(),
+            metrics_convention: metrics::CONVENTION,
+            loss: self.losses,
+            validation: self.vals,
+            config: self.cfg.clone(),
+        };
+        let bytes = serde_json::to_vec_pretty(&report).expect("json");
+        write_atomic(&self.dir.join("report.json"), |w| w.write_all(&bytes))?;
+        crate::plot::training_curves(&self.dir.join("curves.png"), &report)?;
+        Ok(report)
     }
-    let secs = t0.elapsed().as_secs_f64();
-    let report = TrainReport {
-        version: env!("CARGO_PKG_VERSION"),
-        arch: cfg.model.name(),
-        parameters: model.num_params(),
-        steps: end,
-        resumed_from: opts.resume.then_some(start),
-        seconds: secs,
-        patches_per_s: ((end - start) * cfg.optim.batch) as f64 / t_train.elapsed().as_secs_f64().max(1e-9),
-        train_inputs: train_inputs.into_iter().collect(),
-        val_inputs: val_inputs.into_iter().collect(),
-        val_samples: val.len(),
-        metrics_convention: metrics::CONVENTION,
-        loss: losses,
-        validation: vals,
-        config: cfg.clone(),
-    };
-    let bytes = serde_json::to_vec_pretty(&report).expect("json");
-    write_atomic(&dir.join("report.json"), |w| w.write_all(&bytes))?;
-    crate::plot::training_curves(&dir.join("curves.png"), &report)?;
-    Ok(report)
+}
+
+/// Runs training from shards.
+///
+/// # Errors
+/// Bad shards (named), an unwritable output folder, or a non-finite loss (naming the step; the
+/// last good checkpoint stays).
+pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
+    let mut t = Trainer::new(cfg, opts)?;
+    let shards = crate::config::expand_paths(&cfg.data.shards, &["tar"])?;
+    if shards.is_empty() {
+        return Err(Error::Invalid("data.shards: no .tar file found".into()));
+    }
+    // Validation samples, and which inputs went where.
+    let mut size = None;
+    for s in &shards {
+        for p in read_shard(s, size)? {
+            size.get_or_insert((p.w, p.h));
+            if !t.admit(&p) && t.val.len() < cfg.validate.max_samples {
+                t.val.push(p);
+            }
+        }
+    }
+    if t.train_inputs.is_empty() {
+        return Err(Error::Invalid(format!(
+            "data: every input ({:?}) went to validation; lower data.val_fraction or add inputs",
+            t.val_inputs
+        )));
+    }
+    let mut stream = Stream::new(shards, cfg.seed, cfg.data.val_fraction, cfg.data.shuffle_buffer, size);
+    // Replay the data order up to the resumed step.
+    for _ in 0..t.step * cfg.optim.batch {
+        stream.next()?;
+    }
+    while !t.done() {
+        let batch: Vec<Pair> = (0..cfg.optim.batch).map(|_| stream.next()).collect::<Result<_>>()?;
+        t.train_step(&batch)?;
+    }
+    t.finish(opts.resume)
+}
+
+/// `[sinks.NAME] type = "trainer"`: trains on the generator's stream, no disk in between.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainerSinkConfig {
+    pub inputs: Vec<String>,
+    /// Output folder: checkpoints, report.json, curves.png.
+    pub dir: String,
+    pub model: Arch,
+    #[serde(default)]
+    pub optim: OptimConfig,
+    #[serde(default)]
+    pub validate: ValidateConfig,
+    #[serde(default = "d_val_fraction")]
+    pub val_fraction: f64,
+    #[serde(default = "d_shuffle")]
+    pub shuffle_buffer: usize,
+    #[serde(default = "d_true")]
+    pub augment: bool,
+    #[serde(default = "d_ckpt")]
+    pub checkpoint_every: usize,
+}
+
+impl TrainerSinkConfig {
+    /// The equivalent training file (with no shards: the stream feeds it).
+    pub fn to_train_config(&self, seed: u64) -> TrainConfig {
+        TrainConfig {
+            seed,
+            model: self.model,
+            data: DataConfig {
+                shards: vec!["(stream)".into()],
+                val_fraction: self.val_fraction,
+                shuffle_buffer: self.shuffle_buffer,
+                augment: self.augment,
+            },
+            optim: self.optim.clone(),
+            validate: self.validate.clone(),
+            output: OutputConfig { dir: self.dir.clone(), checkpoint_every: self.checkpoint_every },
+        }
+    }
+}
+
+/// The `trainer` sink: samples go through a seeded shuffle buffer into training steps;
+/// samples of validation inputs are kept for validation.
+pub struct TrainerSink {
+    trainer: Option<Trainer>,
+    buffer: Vec<Pair>,
+    rng: Rng,
+    failed: Vec<(String, String)>,
+    summary: Option<TrainReport>,
+}
+
+impl TrainerSink {
+    /// # Errors
+    /// As [`Trainer::new`].
+    pub fn new(cfg: &TrainerSinkConfig, seed: u64) -> Result<TrainerSink> {
+        let t = Trainer::new(&cfg.to_train_config(seed), &TrainOptions { resume: false, progress: false, stop_after: None })?;
+        Ok(TrainerSink {
+            trainer: Some(t),
+            buffer: Vec::new(),
+            rng: Rng::new(hash(&[seed, hash_str("stream-shuffle")])),
+            failed: Vec::new(),
+            summary: None,
+        })
+    }
+
+    fn pump(&mut self, drain: bool) -> Result<()> {
+        let t = self.trainer.as_mut().expect("open");
+        let (cap, batch) = (t.cfg.data.shuffle_buffer.max(t.cfg.optim.batch), t.cfg.optim.batch);
+        while !t.done() && (self.buffer.len() >= cap || (drain && self.buffer.len() >= batch)) {
+            let b: Vec<Pair> = (0..batch).map(|_| self.buffer.swap_remove(self.rng.below(self.buffer.len()))).collect();
+            t.train_step(&b)?;
+        }
+        Ok(())
+    }
+}
+
+impl crate::stage::Sink for TrainerSink {
+    fn consume(&mut self, item: crate::frame::Item) -> Result<()> {
+        use crate::frame::{Img, Item};
+        match item {
+            Item::Sample(s) => {
+                let t = self.trainer.as_mut().expect("open");
+                for p in &s.pairs {
+                    let rgb = |img: &Img| match img {
+                        Img::Encoded8(v) => v.clone(),
+                        Img::Linear(l) => {
+                            crate::stage::noise::quantise(l, p.w, p.h, 0, 0, &crate::optics::transfer::Encoder::new(s.curve), 0.0, 0)
+                        }
+                    };
+                    let pair = Pair {
+                        key: format!("{}_{:06}", s.input.key, s.window),
+                        input_index: s.input.index,
+                        w: p.w,
+                        h: p.h,
+                        lq: rgb(&p.lq),
+                        gt: rgb(&p.gt),
+                    };
+                    if t.admit(&pair) {
+                        self.buffer.push(pair);
+                    } else if t.val.len() < t.cfg.validate.max_samples {
+                        t.val.push(pair);
+                    }
+                }
+                self.pump(false)?;
+            }
+            Item::End(input, Err(e)) => self.failed.push((input.path.clone(), e)),
+            _ => {}
+        }
+        Ok(())
+    }
+
+    fn wants_more(&self) -> bool {
+        self.trainer.as_ref().is_some_and(|t| !t.done())
+    }
+
+    fn finish(&mut self) -> Result<serde_json::Value> {
+        self.pump(true)?;
+        let t = self.trainer.take().expect("open");
+        if t.step == 0 {
+            return Err(Error::Invalid(format!("the stream ended before one batch of {} training samples", t.cfg.optim.batch)));
+        }
+        let r = t.finish(false)?;
+        let v = serde_json::json!({
+            "sink": "trainer", "arch": r.arch, "steps": r.steps, "patches_per_s": r.patches_per_s,
+            "validation": r.validation.last(), "dir": r.config.output.dir,
+        });
+        self.summary = Some(r);
+        Ok(v)
+    }
+
+    fn abort(&mut self) {}
+
+    fn failures(&self) -> Vec<(String, String)> {
+        self.failed.clone()
+    }
 }
 
 #[cfg(test)]

@@ -117,6 +117,11 @@ pub trait Sink: Send {
     fn abort(&mut self);
     /// Inputs that failed: (path, reason).
     fn failures(&self) -> Vec<(String, String)>;
+    /// False once the sink needs nothing more (a trainer that has done its steps): the run
+    /// then stops its sources and finishes normally.
+    fn wants_more(&self) -> bool {
+        true
+    }
 }
 
 /// `linearize`: marks frames as linear light through `curve`. The pixels are converted lazily,

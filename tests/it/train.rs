@@ -153,3 +153,30 @@ fn bad_shards_and_bad_model_files_are_named() {
     let e = load_model(&other, &Device::flex()).unwrap_err().to_string();
     assert!(e.contains("other.safetensors") && e.contains("shallow-9"), "{e}");
 }
+
+#[test]
+fn training_straight_from_the_generator_stream() {
+    let out = scratch("train_stream");
+    let o = bin()
+        .args([
+            "run",
+            concat!(env!("CARGO_MANIFEST_DIR"), "/pipelines/train-stream.toml"),
+            "-o",
+            out.to_str().unwrap(),
+            "--progress",
+            "never",
+        ])
+        .args(["--set", "sources.clips.clips=40", "--set", "sources.clips.size=[64, 64]", "--set", "sources.clips.frames=9"])
+        .args(["--set", "transforms.patches.size=32", "--set", "sinks.train.model={ type = \"shallow\", width = 8 }"])
+        .args(["--set", "sinks.train.optim.steps=5", "--set", "sinks.train.optim.batch=4", "--set", "sinks.train.shuffle_buffer=8"])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(r["steps"], 5);
+    assert!(!r["val_inputs"].as_array().unwrap().is_empty());
+    assert!(out.join("model-0000005.safetensors").exists() && out.join("curves.png").exists());
+    // It stopped the generator once trained: fewer clips read than asked for.
+    let inputs = r["train_inputs"].as_array().unwrap().len() + r["val_inputs"].as_array().unwrap().len();
+    assert!(inputs < 40, "{inputs} clips read");
+}
