@@ -14,9 +14,11 @@ use std::path::PathBuf;
     about = "Motion deblurring with a spatiotemporally phase-coded camera",
     long_about = "Motion deblurring with a spatiotemporally phase-coded camera (Elmalem, Giryes and Marom).\n\n\
 A ring phase mask in the lens aperture plus a focus sweep during the exposure makes the blur of a \
-moving point change colour along its path (blue, then green, then red). `pipeline` models that camera \
-and the cameras it is compared with, and looks at their PSFs.",
-    after_help = "Examples:\n  pipeline psf --camera phase_coded --psi 0:8:33 --out psfs.npy\n  pipeline psf --camera flutter --window 9 --out flutter.png\n  pipeline psf --help"
+moving point change colour along its path (blue, then green, then red), so a network can read the \
+direction and extent of motion and undo it. `pipeline` models that camera and the cameras it is \
+compared with, makes coded-blur training data from high-frame-rate video, and trains the paper's \
+networks on it.",
+    after_help = "Examples:\n  pipeline psf --camera phase_coded --psi 0:8:33 --out psfs.npy     the coded camera's PSFs\n  pipeline generate clip.mp4 -o out/                                training pairs as WebDataset shards\n  pipeline run pipelines/stills.toml -o out/stills                  the same from still images\n  pipeline train --config pipelines/train.toml                      train the U-Net on them\n  pipeline validate pipelines/*.toml                                check configs\n\nEvery command has --help with its own examples."
 )]
 pub struct Cli {
     #[command(subcommand)]
