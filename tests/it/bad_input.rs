@@ -97,7 +97,7 @@ fn every_shipped_pipeline_validates() {
 #[test]
 fn ctrl_c_stops_cleanly_and_leaves_no_half_written_shard() {
     let out = scratch("ctrl_c");
-    let mut child = bin()
+    let child = bin()
         .args(["generate", FIXTURE, "-o", out.to_str().unwrap(), "--progress", "never"])
         .stderr(std::process::Stdio::piped())
         .spawn()

@@ -6,24 +6,33 @@ use burn::tensor::{Device, Tensor, TensorData};
 use pipeline::train::{load_model, train, TrainConfig, TrainOptions};
 use std::path::{Path, PathBuf};
 
-/// Tiny shards: 4 procedural clips of 64x64, 2 windows each, 4 patches of 32 px per window.
-fn tiny_shards(name: &str) -> PathBuf {
+/// Shards from `clips` procedural 64x64 clips of `frames` frames, 4 patches of 32 px per window.
+fn stills_shards(name: &str, clips: usize, frames: usize) -> PathBuf {
     let d = scratch(name);
     let table = pipeline::config::load(
         &Path::new(env!("CARGO_MANIFEST_DIR")).join("pipelines/stills.toml"),
         &[
-            "sources.stills.clips=4".into(),
+            format!("sources.stills.clips={clips}"),
             "sources.stills.size=[64, 64]".into(),
-            "sources.stills.frames=18".into(),
+            format!("sources.stills.frames={frames}"),
             "transforms.patches.size=32".into(),
             "transforms.noise.sigma=1.0".into(),
             format!("sinks.shards.dir={:?}", d.display().to_string()),
         ],
     )
     .unwrap();
-    let plan = pipeline::config::plan(table, "tiny").unwrap();
-    pipeline::graph::run(&plan, &Default::default()).unwrap();
+    pipeline::graph::run(&pipeline::config::plan(table, name).unwrap(), &Default::default()).unwrap();
     d
+}
+
+/// 4 clips, 2 windows each: enough inputs for a validation split.
+fn tiny_shards(name: &str) -> PathBuf {
+    stills_shards(name, 4, 18)
+}
+
+/// Exactly 4 samples (one clip, one window, 4 patches): a tiny fixed set.
+fn fixed_set(name: &str) -> PathBuf {
+    stills_shards(name, 1, 9)
 }
 
 fn config(shards: &Path, out: &Path, extra: &str) -> TrainConfig {
@@ -48,25 +57,6 @@ fn outputs(path: &Path) -> Vec<f32> {
     let dev = Device::flex();
     let (m, _) = load_model(path, &dev).unwrap();
     m.valid().forward(probe(&dev)).into_data().try_to_vec::<f32>().unwrap()
-}
-
-/// Shards with exactly 4 samples (one clip, one window, 4 patches): a tiny fixed set.
-fn fixed_set(name: &str) -> PathBuf {
-    let d = scratch(name);
-    let table = pipeline::config::load(
-        &Path::new(env!("CARGO_MANIFEST_DIR")).join("pipelines/stills.toml"),
-        &[
-            "sources.stills.clips=1".into(),
-            "sources.stills.size=[64, 64]".into(),
-            "sources.stills.frames=9".into(),
-            "transforms.patches.size=32".into(),
-            "transforms.noise.sigma=1.0".into(),
-            format!("sinks.shards.dir={:?}", d.display().to_string()),
-        ],
-    )
-    .unwrap();
-    pipeline::graph::run(&pipeline::config::plan(table, "fixed").unwrap(), &Default::default()).unwrap();
-    d
 }
 
 #[test]
