@@ -18,29 +18,6 @@ use std::collections::{HashMap, VecDeque};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
-/// Copies the `hp x wp`-sized region starting at (x0, y0) (may be negative or past the edge:
-/// mirrored) of a `w x h` plane into `out`; only the first `rh x rw` are filled, the rest zero.
-#[allow(clippy::too_many_arguments)]
-pub fn extract(plane: &[f32], w: usize, h: usize, x0: isize, y0: isize, rw: usize, rh: usize, wp: usize, out: &mut [f32]) {
-    let cols: Vec<usize> = (0..rw).map(|x| reflect(x0 + x as isize, w)).collect();
-    let inside = x0 >= 0 && x0 as usize + rw <= w;
-    for y in 0..rh {
-        let sy = reflect(y0 + y as isize, h);
-        let src = &plane[sy * w..(sy + 1) * w];
-        let dst = &mut out[y * wp..y * wp + rw];
-        if inside {
-            dst.copy_from_slice(&src[x0 as usize..x0 as usize + rw]);
-        } else {
-            for (d, &c) in dst.iter_mut().zip(&cols) {
-                *d = src[c];
-            }
-        }
-        out[y * wp + rw..(y + 1) * wp].fill(0.0);
-    }
-    let total = out.len();
-    out[rh * wp..total].fill(0.0);
-}
-
 /// The numerical part of the stage: kernels, their low-rank factorisation per channel,
 /// spectra caches and worker FFT plans.
 ///
