@@ -170,3 +170,20 @@ fn training_straight_from_the_generator_stream() {
     let inputs = r["train_inputs"].as_array().unwrap().len() + r["val_inputs"].as_array().unwrap().len();
     assert!(inputs < 40, "{inputs} clips read");
 }
+
+#[test]
+fn shipped_models_load_and_deblur_a_patch() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("models");
+    let mut n = 0;
+    for m in files(&dir).into_iter().filter(|f| dir.join(f).is_dir()) {
+        let path = dir.join(&m).join("model.safetensors");
+        let (net, arch) = load_model(&path, &Device::flex()).unwrap_or_else(|e| panic!("{m}: {e}"));
+        let report: serde_json::Value = serde_json::from_slice(&std::fs::read(dir.join(&m).join("report.json")).unwrap()).unwrap();
+        assert_eq!(report["arch"], arch.name(), "{m}");
+        let x = probe(&Device::flex());
+        let y = net.valid().forward(x.clone()).into_data().try_to_vec::<f32>().unwrap();
+        assert!(y.iter().zip(x.into_data().try_to_vec::<f32>().unwrap()).any(|(a, b)| (a - b).abs() > 1e-3), "{m} is the identity");
+        n += 1;
+    }
+    assert!(n >= 3, "{n} models shipped");
+}
