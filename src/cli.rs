@@ -58,6 +58,32 @@ pub enum Command {
         #[arg(long, value_enum, default_value_t = ProgressMode::Auto)]
         progress: ProgressMode,
     },
+    /// Deblur a video (same size and frame rate) or a folder of PNG images (same names).
+    #[cfg(feature = "train")]
+    #[command(
+        after_help = "Examples:\n  pipeline deblur coded.mp4 -o sharp.mp4                  the shipped default model\n  pipeline deblur coded.mkv -o sharp.mkv --lossless       FFV1, lossless RGB\n  pipeline deblur frames/ -o sharp/ --model runs/unet16/model-0000300.safetensors\n\nWrites OUTPUT and OUTPUT.report.json (frames, size, frame rate, frames/s). Audio is not copied."
+    )]
+    Deblur {
+        /// A video FFmpeg reads, or a folder (or glob) of PNG images.
+        input: PathBuf,
+        /// Output video (.mp4, .mkv, .mov...) or folder.
+        #[arg(short, long)]
+        out: PathBuf,
+        /// A model written by `pipeline train`; default: the shipped shallow model (coded camera).
+        #[arg(long)]
+        model: Option<PathBuf>,
+        /// Tile size in pixels (frames are processed in tiles with blended seams).
+        #[arg(long, default_value_t = 256)]
+        tile: usize,
+        /// Overlap between tiles in pixels.
+        #[arg(long, default_value_t = 32)]
+        overlap: usize,
+        /// Lossless output (FFV1 RGB in .mkv) instead of H.264.
+        #[arg(long)]
+        lossless: bool,
+        #[arg(long, value_enum, default_value_t = ProgressMode::Auto)]
+        progress: ProgressMode,
+    },
     /// Check pipeline files and report every error, each naming its key.
     Validate {
         /// Pipeline files.
@@ -422,6 +448,35 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
                     v.model.psnr_rgb, v.model.ssim_rgb, v.input.psnr_rgb, v.input.ssim_rgb
                 )),
                 cfg.output.dir
+            );
+            Ok(())
+        }
+        #[cfg(feature = "train")]
+        Command::Deblur { input, out, model, tile, overlap, lossless, progress } => {
+            let same = input.canonicalize().ok().zip(out.canonicalize().ok()).is_some_and(|(a, b)| a == b) || input == out;
+            if same {
+                bail!("{}: the output is the input; choose another output path", out.display());
+            }
+            let device = burn::tensor::Device::flex();
+            let (net, name) = crate::deblur::load(model.as_deref(), &device)?;
+            let tiling = crate::deblur::Tiling { tile, overlap };
+            let r = if input.is_dir() || input.to_string_lossy().contains('*') {
+                crate::deblur::images(&net, &name, &input, &out, tiling)?
+            } else {
+                let bar = progress == ProgressMode::Auto && std::io::IsTerminal::is_terminal(&std::io::stderr());
+                crate::deblur::video(&net, &name, &input, &out, tiling, lossless, bar)?
+            };
+            let rp = if out.is_dir() { out.join("report.json") } else { PathBuf::from(format!("{}.report.json", out.display())) };
+            crate::deblur::write_report(&rp, &r)?;
+            eprintln!(
+                "{} frames of {}x{} in {:.1} s ({:.2} frames/s) with {} -> {}",
+                r.frames,
+                r.width,
+                r.height,
+                r.seconds,
+                r.frames_per_s,
+                r.model,
+                out.display()
             );
             Ok(())
         }

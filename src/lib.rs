@@ -10,6 +10,8 @@
 pub mod bench;
 pub mod cli;
 pub mod config;
+#[cfg(feature = "train")]
+pub mod deblur;
 pub mod error;
 pub mod frame;
 pub mod graph;

@@ -510,6 +510,16 @@ fn save_checkpoint(dir: &Path, model: &Net, optim_bytes: Vec<u8>, cfg: &TrainCon
 /// A missing or truncated file, or weights of another architecture (named).
 pub fn load_model(path: &Path, device: &Device) -> Result<(Net, Arch)> {
     let bytes = std::fs::read(path).map_err(|e| Error::Io { path: path.to_path_buf(), source: e })?;
+    load_model_bytes(&bytes, &path.display().to_string(), device)
+}
+
+/// As [`load_model`], from the bytes of a model file; `name` names it in errors.
+///
+/// # Errors
+/// As [`load_model`].
+pub fn load_model_bytes(bytes: &[u8], name: &str, device: &Device) -> Result<(Net, Arch)> {
+    let path = Path::new(name);
+    let bytes = bytes.to_vec();
     let arch = read_arch(&bytes).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
     let mut net = Net::new(arch, device);
     let mut store = SafetensorsStore::from_bytes(Some(bytes));

@@ -27,6 +27,8 @@ pub struct VideoReader {
     pub frames_decoded: u64,
     /// Bits per component of the source; up to 8 gives 8-bit planes, deeper 16-bit planes.
     pub bit_depth: u32,
+    /// Average frame rate as a fraction (numerator, denominator).
+    pub rate: (i32, i32),
 }
 
 /// Bits of the first component of a pixel format.
@@ -90,6 +92,7 @@ impl VideoReader {
             done: false,
             frames_decoded: 0,
             bit_depth,
+            rate: (rate.numerator(), rate.denominator()),
         })
     }
 
@@ -212,4 +215,128 @@ fn set_colorspace(sc: &mut ff::software::scaling::Context, frame: &ff::frame::Vi
 fn is_full_range_yuv(p: ff::format::Pixel) -> bool {
     use ff::format::Pixel::*;
     matches!(p, YUVJ420P | YUVJ422P | YUVJ444P)
+}
+
+/// Video encoding: H.264 (libx264, CRF 18) by default, or FFV1 (lossless, RGB) for `.mkv`
+/// with `lossless`. Frames are interleaved 8-bit RGB.
+pub struct VideoWriter {
+    octx: ff::format::context::Output,
+    enc: ff::encoder::Video,
+    scaler: ff::software::scaling::Context,
+    enc_tb: ff::Rational,
+    stream_tb: ff::Rational,
+    rgb: ff::frame::Video,
+    out: ff::frame::Video,
+    next_pts: i64,
+    w: usize,
+    h: usize,
+}
+
+impl VideoWriter {
+    /// Opens `path` for `w x h` frames at `fps` (numerator, denominator).
+    ///
+    /// # Errors
+    /// No encoder, a container that does not fit, or the file cannot be created (message without
+    /// the path; the caller names it).
+    pub fn create(path: &Path, w: usize, h: usize, fps: (i32, i32), lossless: bool) -> Result<VideoWriter, String> {
+        init();
+        let mut octx = ff::format::output(&path).map_err(|e| format!("cannot create ({})", fmt_err(e)))?;
+        let global = octx.format().flags().contains(ff::format::Flags::GLOBAL_HEADER);
+        let (id, pix) = if lossless {
+            (ff::codec::Id::FFV1, ff::format::Pixel::BGRZ)
+        } else if w % 2 == 0 && h % 2 == 0 {
+            (ff::codec::Id::H264, ff::format::Pixel::YUV420P)
+        } else {
+            (ff::codec::Id::H264, ff::format::Pixel::YUV444P)
+        };
+        let codec = ff::encoder::find(id).ok_or_else(|| format!("no {id:?} encoder in this FFmpeg"))?;
+        let mut enc = ff::codec::context::Context::new_with_codec(codec).encoder().video().map_err(fmt_err)?;
+        let rate = ff::Rational::new(fps.0.max(1), fps.1.max(1));
+        let tb = ff::Rational::new(fps.1.max(1), fps.0.max(1));
+        enc.set_width(w as u32);
+        enc.set_height(h as u32);
+        enc.set_format(pix);
+        enc.set_time_base(tb);
+        enc.set_frame_rate(Some(rate));
+        if global {
+            enc.set_flags(ff::codec::Flags::GLOBAL_HEADER);
+        }
+        let mut opts = ff::Dictionary::new();
+        if !lossless {
+            opts.set("crf", "18");
+            opts.set("preset", "medium");
+        }
+        let enc = enc.open_with(opts).map_err(|e| format!("cannot open the {id:?} encoder ({})", fmt_err(e)))?;
+        let mut ost = octx.add_stream(codec).map_err(fmt_err)?;
+        ost.set_parameters(&enc);
+        ost.set_time_base(tb);
+        drop(ost);
+        octx.write_header().map_err(|e| format!("cannot write the header ({})", fmt_err(e)))?;
+        let stream_tb = octx.stream(0).map(|s| s.time_base()).unwrap_or(tb);
+        let scaler = ff::software::scaling::Context::get(
+            ff::format::Pixel::RGB24,
+            w as u32,
+            h as u32,
+            pix,
+            w as u32,
+            h as u32,
+            ff::software::scaling::Flags::BILINEAR | ff::software::scaling::Flags::ACCURATE_RND,
+        )
+        .map_err(fmt_err)?;
+        Ok(VideoWriter {
+            octx,
+            enc,
+            scaler,
+            enc_tb: tb,
+            stream_tb,
+            rgb: ff::frame::Video::new(ff::format::Pixel::RGB24, w as u32, h as u32),
+            out: ff::frame::Video::empty(),
+            next_pts: 0,
+            w,
+            h,
+        })
+    }
+
+    fn drain(&mut self) -> Result<(), String> {
+        let mut packet = ff::Packet::empty();
+        while self.enc.receive_packet(&mut packet).is_ok() {
+            packet.set_stream(0);
+            // One frame's duration, so the container's duration counts the last frame too.
+            if packet.duration() == 0 {
+                packet.set_duration(1);
+            }
+            packet.rescale_ts(self.enc_tb, self.stream_tb);
+            packet.write_interleaved(&mut self.octx).map_err(fmt_err)?;
+        }
+        Ok(())
+    }
+
+    /// Appends one interleaved 8-bit RGB frame.
+    ///
+    /// # Errors
+    /// Encoding or writing fails.
+    pub fn write_rgb8(&mut self, rgb: &[u8]) -> Result<(), String> {
+        assert_eq!(rgb.len(), self.w * self.h * 3);
+        let stride = self.rgb.stride(0);
+        let data = self.rgb.data_mut(0);
+        for y in 0..self.h {
+            data[y * stride..y * stride + self.w * 3].copy_from_slice(&rgb[y * self.w * 3..(y + 1) * self.w * 3]);
+        }
+        self.scaler.run(&self.rgb, &mut self.out).map_err(fmt_err)?;
+        self.out.set_pts(Some(self.next_pts));
+        self.next_pts += 1;
+        self.enc.send_frame(&self.out).map_err(fmt_err)?;
+        self.drain()
+    }
+
+    /// Flushes the encoder and writes the trailer.
+    ///
+    /// # Errors
+    /// Writing fails.
+    pub fn finish(mut self) -> Result<u64, String> {
+        self.enc.send_eof().map_err(fmt_err)?;
+        self.drain()?;
+        self.octx.write_trailer().map_err(fmt_err)?;
+        Ok(self.next_pts as u64)
+    }
 }

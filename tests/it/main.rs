@@ -2,6 +2,8 @@
 
 mod bad_input;
 mod common;
+#[cfg(feature = "train")]
+mod deblur;
 mod generate;
 mod psf_cli;
 #[cfg(feature = "train")]

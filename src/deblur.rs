@@ -1,0 +1,258 @@
+//! `pipeline deblur`: runs a trained network over a video or a folder of images, frame by
+//! frame, in tiles with overlapping, blended seams, in bounded memory.
+//!
+//! The network takes encoded sRGB values in [0, 1] (as the training pairs are written), so frames
+//! go in as decoded. Audio is not copied (the report says so).
+
+use crate::io::{png as png_io, write_atomic};
+use crate::model::Net;
+use crate::{Error, Result};
+use burn::module::Module;
+use burn::tensor::{Device, Tensor, TensorData};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// The model `deblur` uses without `--model`: the shipped shallow model trained on the coded
+/// camera (the best of the shipped models on validation, 0.3 MB).
+pub const DEFAULT_MODEL: &[u8] = include_bytes!("../models/shallow32-coded/model.safetensors");
+
+/// Tiling of a frame: square tiles of `tile` pixels overlapping by `overlap`.
+#[derive(Debug, Clone, Copy)]
+pub struct Tiling {
+    pub tile: usize,
+    pub overlap: usize,
+}
+
+/// Start positions of tiles of `t` covering `0..n` with at least `o` overlap.
+fn starts(n: usize, t: usize, o: usize) -> Vec<usize> {
+    if n <= t {
+        return vec![0];
+    }
+    let step = t - o;
+    let count = (n - o).div_ceil(step);
+    (0..count).map(|i| (i * step).min(n - t)).collect()
+}
+
+/// Blending weight of position `i` in a tile of length `len` placed at `start` in `0..n`: a
+/// linear ramp over the overlap, except at the frame's own borders.
+fn ramp(i: usize, len: usize, start: usize, n: usize, o: usize) -> f32 {
+    let mut w = 1.0f32;
+    if start > 0 && i < o {
+        w = w.min((i as f32 + 0.5) / o as f32);
+    }
+    if start + len < n && i + o >= len {
+        w = w.min((len - i) as f32 / o as f32 - 0.5 / o as f32);
+    }
+    w.max(1e-3)
+}
+
+/// Runs `net` on one interleaved 8-bit RGB frame, whole or in blended tiles.
+pub fn run_frame(net: &Net, rgb: &[u8], w: usize, h: usize, tiling: Tiling, device: &Device) -> Vec<u8> {
+    let (t, o) = (tiling.tile.max(16), tiling.overlap.min(tiling.tile / 2));
+    let mut acc = vec![0.0f32; w * h * 3];
+    let mut wsum = vec![0.0f32; w * h];
+    for y0 in starts(h, t, o) {
+        for x0 in starts(w, t, o) {
+            let (tw, th) = (t.min(w), t.min(h));
+            let mut v = vec![0.0f32; 3 * tw * th];
+            for y in 0..th {
+                for x in 0..tw {
+                    for c in 0..3 {
+                        v[c * tw * th + y * tw + x] = rgb[((y0 + y) * w + x0 + x) * 3 + c] as f32 / 255.0;
+                    }
+                }
+            }
+            let out = net
+                .forward(Tensor::<4>::from_data(TensorData::new(v, [1, 3, th, tw]), device))
+                .into_data()
+                .try_to_vec::<f32>()
+                .expect("f32");
+            for y in 0..th {
+                let wy = ramp(y, th, y0, h, o);
+                for x in 0..tw {
+                    let wgt = wy * ramp(x, tw, x0, w, o);
+                    let p = (y0 + y) * w + x0 + x;
+                    wsum[p] += wgt;
+                    for c in 0..3 {
+                        acc[p * 3 + c] += wgt * out[c * tw * th + y * tw + x];
+                    }
+                }
+            }
+        }
+    }
+    acc.iter().enumerate().map(|(i, v)| ((v / wsum[i / 3]).clamp(0.0, 1.0) * 255.0).round() as u8).collect()
+}
+
+/// `report.json` of a deblur run.
+#[derive(Debug, serde::Serialize)]
+pub struct DeblurReport {
+    pub version: &'static str,
+    pub input: String,
+    pub output: String,
+    pub model: String,
+    pub frames: u64,
+    pub width: usize,
+    pub height: usize,
+    pub fps: Option<f64>,
+    pub tile: usize,
+    pub overlap: usize,
+    pub seconds: f64,
+    pub frames_per_s: f64,
+    pub audio: &'static str,
+}
+
+/// Where a file is written before it is renamed into place (same folder, same extension, so
+/// FFmpeg picks the same container).
+fn temp_for(path: &Path) -> PathBuf {
+    let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let ext = path.extension().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    path.with_file_name(format!(".{stem}.tmp-{}.{ext}", std::process::id()))
+}
+
+/// Deblurs a video into a video of the same size and frame rate.
+///
+/// # Errors
+/// The input cannot be decoded, the output cannot be written (named); nothing is left at the
+/// output path on failure.
+#[cfg(feature = "ffmpeg")]
+pub fn video(
+    net: &Net,
+    model_name: &str,
+    input: &Path,
+    output: &Path,
+    tiling: Tiling,
+    lossless: bool,
+    progress: bool,
+) -> Result<DeblurReport> {
+    use crate::frame::FrameData;
+    use crate::io::video::{VideoReader, VideoWriter};
+    let t0 = Instant::now();
+    let name = |p: &Path, e: String| Error::Invalid(format!("{}: {e}", p.display()));
+    let mut reader = VideoReader::open(input).map_err(|e| name(input, e))?;
+    let (w, h) = (reader.info.width, reader.info.height);
+    if lossless && output.extension().and_then(|e| e.to_str()) != Some("mkv") {
+        return Err(name(output, "--lossless writes FFV1, which needs a .mkv output".into()));
+    }
+    let tmp = temp_for(output);
+    let mut writer = VideoWriter::create(&tmp, w, h, reader.rate, lossless).map_err(|e| name(output, e))?;
+    let device = Device::flex();
+    let bar = progress.then(|| {
+        let b = indicatif::ProgressBar::new(reader.info.frames_announced.unwrap_or(0));
+        b.set_style(indicatif::ProgressStyle::with_template("deblur {bar:30} {pos}/{len} {per_sec}").expect("template"));
+        b
+    });
+    let result = (|| -> Result<u64> {
+        while let Some(f) = reader.next_frame().map_err(|e| name(input, e))? {
+            let rgb: Vec<u8> = match &*f.data {
+                FrameData::Planar8(p) => (0..w * h).flat_map(|i| [p[0][i], p[1][i], p[2][i]]).collect(),
+                FrameData::Planar16(p) => (0..w * h).flat_map(|i| [0, 1, 2].map(|c| (p[c][i] as f32 / 257.0).round() as u8)).collect(),
+                FrameData::Planar(p) => (0..w * h).flat_map(|i| [0, 1, 2].map(|c| (p[c][i] * 255.0).round() as u8)).collect(),
+            };
+            let out = run_frame(net, &rgb, w, h, tiling, &device);
+            writer.write_rgb8(&out).map_err(|e| name(output, e))?;
+            if let Some(b) = &bar {
+                b.inc(1);
+            }
+        }
+        let n = writer.finish().map_err(|e| name(output, e))?;
+        std::fs::rename(&tmp, output).map_err(|e| Error::Io { path: output.to_path_buf(), source: e })?;
+        Ok(n)
+    })();
+    let frames = match result {
+        Ok(n) => n,
+        Err(e) => {
+            let _ = std::fs::remove_file(&tmp);
+            return Err(e);
+        }
+    };
+    let secs = t0.elapsed().as_secs_f64();
+    Ok(DeblurReport {
+        version: env!("CARGO_PKG_VERSION"),
+        input: input.display().to_string(),
+        output: output.display().to_string(),
+        model: model_name.into(),
+        frames,
+        width: w,
+        height: h,
+        fps: Some(reader.info.fps),
+        tile: tiling.tile,
+        overlap: tiling.overlap,
+        seconds: secs,
+        frames_per_s: frames as f64 / secs,
+        audio: "not copied: deblur writes the video stream only",
+    })
+}
+
+/// Deblurs every PNG in a folder into a folder, keeping the names.
+///
+/// # Errors
+/// An unreadable image (named), a format other than PNG (named), an unwritable output.
+pub fn images(net: &Net, model_name: &str, input: &Path, output: &Path, tiling: Tiling) -> Result<DeblurReport> {
+    let t0 = Instant::now();
+    let files = crate::config::expand_paths(&[input.display().to_string()], &["png", "jpg", "jpeg", "tif", "tiff", "exr"])?;
+    std::fs::create_dir_all(output).map_err(|e| Error::Io { path: output.to_path_buf(), source: e })?;
+    let device = Device::flex();
+    let (mut w, mut h) = (0, 0);
+    for f in &files {
+        let ext = f.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
+        if ext != "png" {
+            return Err(Error::Invalid(format!("{}: only PNG images are read so far", f.display())));
+        }
+        let bytes = std::fs::read(f).map_err(|e| Error::Io { path: f.clone(), source: e })?;
+        let (fw, fh, rgb) = png_io::read_rgb8(&bytes).map_err(|e| Error::Invalid(format!("{}: {e}", f.display())))?;
+        (w, h) = (fw, fh);
+        let out = run_frame(net, &rgb, fw, fh, tiling, &device);
+        let dst = output.join(f.file_name().expect("a file"));
+        write_atomic(&dst, |wr| png_io::write_rgb8(wr, fw, fh, &out))?;
+    }
+    let secs = t0.elapsed().as_secs_f64();
+    Ok(DeblurReport {
+        version: env!("CARGO_PKG_VERSION"),
+        input: input.display().to_string(),
+        output: output.display().to_string(),
+        model: model_name.into(),
+        frames: files.len() as u64,
+        width: w,
+        height: h,
+        fps: None,
+        tile: tiling.tile,
+        overlap: tiling.overlap,
+        seconds: secs,
+        frames_per_s: files.len() as f64 / secs,
+        audio: "none (images)",
+    })
+}
+
+/// Loads `--model`, or the embedded default.
+///
+/// # Errors
+/// As [`crate::train::load_model`].
+pub fn load(model: Option<&Path>, device: &Device) -> Result<(Net, String)> {
+    match model {
+        Some(p) => crate::train::load_model(p, device).map(|(n, a)| (n.valid(), format!("{} ({})", p.display(), a.name()))),
+        None => crate::train::load_model_bytes(DEFAULT_MODEL, "embedded models/shallow32-coded", device)
+            .map(|(n, a)| (n.valid(), format!("models/shallow32-coded ({})", a.name()))),
+    }
+}
+
+/// Writes the report beside the output.
+///
+/// # Errors
+/// It cannot be written.
+pub fn write_report(path: &Path, r: &DeblurReport) -> Result<()> {
+    let bytes = serde_json::to_vec_pretty(r).expect("json");
+    write_atomic(path, |w| w.write_all(&bytes))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tiles_cover_the_frame_with_the_overlap() {
+        assert_eq!(starts(100, 128, 16), vec![0]);
+        let s = starts(300, 128, 32);
+        assert_eq!(*s.last().unwrap(), 300 - 128);
+        assert!(s.windows(2).all(|p| p[1] - p[0] <= 128 - 32));
+    }
+}

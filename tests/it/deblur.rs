@@ -1,0 +1,87 @@
+//! `pipeline deblur`: videos keep count, size and rate; folders keep names; tiles match the
+//! whole frame; an identity model gives the input back; bad paths are refused by name.
+
+use crate::common::*;
+use burn::tensor::Device;
+use pipeline::deblur::{run_frame, Tiling};
+use pipeline::model::{Arch, Net};
+
+fn probe(path: &std::path::Path) -> String {
+    let o = std::process::Command::new("ffprobe")
+        .args(["-v", "error", "-select_streams", "v", "-show_entries", "stream=width,height,r_frame_rate,nb_frames", "-of", "default=nw=1"])
+        .arg(path)
+        .output()
+        .unwrap();
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+#[test]
+fn a_video_keeps_frame_count_size_and_rate() {
+    let input = clip("deblur-in.mp4", &["-i", FIXTURE, "-frames:v", "6", "-vf", "crop=96:64", "-c:v", "libx264", "-preset", "ultrafast"]);
+    let d = scratch("deblur_video");
+    let out = d.join("out.mp4");
+    let o = run(&["deblur", input.to_str().unwrap(), "-o", out.to_str().unwrap(), "--progress", "never"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(probe(&out), probe(&input));
+    assert!(probe(&out).contains("nb_frames=6") && probe(&out).contains("r_frame_rate=240/1"), "{}", probe(&out));
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join("out.mp4.report.json")).unwrap()).unwrap();
+    assert_eq!(r["frames"], 6);
+    assert!(r["audio"].as_str().unwrap().contains("not copied"));
+    // Lossless needs .mkv, and says so.
+    let o = run(&["deblur", input.to_str().unwrap(), "-o", d.join("l.mp4").to_str().unwrap(), "--lossless"]);
+    assert!(!o.status.success() && stderr(&o).contains(".mkv"));
+}
+
+#[test]
+fn a_folder_of_images_keeps_the_names() {
+    let d = scratch("deblur_images");
+    let (src, dst) = (d.join("in"), d.join("out"));
+    std::fs::create_dir_all(&src).unwrap();
+    for (name, seed) in [("a.png", 1u64), ("frame_0002.png", 2)] {
+        let rgb: Vec<u8> = (0..40 * 30 * 3).map(|i| (pipeline::rng::hash(&[seed, i as u64]) % 256) as u8).collect();
+        let mut buf = Vec::new();
+        pipeline::io::png::write_rgb8(&mut buf, 40, 30, &rgb).unwrap();
+        std::fs::write(src.join(name), buf).unwrap();
+    }
+    let o = run(&["deblur", src.to_str().unwrap(), "-o", dst.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let names: Vec<String> = files(&dst).into_iter().filter(|f| f.ends_with(".png")).collect();
+    assert_eq!(names, vec!["a.png", "frame_0002.png"]);
+    let (w, h, _) = pipeline::io::png::read_rgb8(&std::fs::read(dst.join("a.png")).unwrap()).unwrap();
+    assert_eq!((w, h), (40, 30));
+}
+
+#[test]
+fn tiles_match_the_whole_frame_and_an_identity_model_gives_the_input_back() {
+    let dev = Device::flex();
+    let (w, h) = (150, 110);
+    let rgb: Vec<u8> =
+        (0..w * h * 3).map(|i| ((i / 3 % w) as f64 * 1.7 + (i / 3 / w) as f64 * 0.9 + (i % 3) as f64 * 40.0) as u8).collect();
+    let identity = Net::new(Arch::Shallow { width: 8 }, &dev).zero_last_layer(&dev);
+    assert!(run_frame(&identity, &rgb, w, h, Tiling { tile: 64, overlap: 16 }, &dev) == rgb);
+    let (net, _) = pipeline::deblur::load(None, &dev).unwrap();
+    let whole = run_frame(&net, &rgb, w, h, Tiling { tile: 256, overlap: 0 }, &dev);
+    let tiled = run_frame(&net, &rgb, w, h, Tiling { tile: 64, overlap: 24 }, &dev);
+    let diffs: Vec<i32> = whole.iter().zip(&tiled).map(|(a, b)| (*a as i32 - *b as i32).abs()).collect();
+    let mean = diffs.iter().sum::<i32>() as f64 / diffs.len() as f64;
+    let worst = *diffs.iter().max().unwrap();
+    assert!(mean < 0.25 && worst <= 6, "tiled vs whole: mean {mean} levels, worst {worst}");
+}
+
+#[test]
+fn bad_paths_are_refused_and_the_input_is_untouched() {
+    let input =
+        clip("deblur-bad-in.mp4", &["-i", FIXTURE, "-frames:v", "3", "-vf", "crop=64:48", "-c:v", "libx264", "-preset", "ultrafast"]);
+    let before = std::fs::read(&input).unwrap();
+    let o = run(&["deblur", input.to_str().unwrap(), "-o", input.to_str().unwrap()]);
+    assert!(!o.status.success() && stderr(&o).contains("the output is the input"), "{}", stderr(&o));
+    let d = scratch("deblur_bad");
+    let file = d.join("a-file");
+    std::fs::write(&file, "x").unwrap();
+    let o = run(&["deblur", input.to_str().unwrap(), "-o", file.join("out.mp4").to_str().unwrap()]);
+    assert!(!o.status.success() && stderr(&o).contains("out.mp4"), "{}", stderr(&o));
+    let o = run(&["deblur", input.to_str().unwrap(), "-o", d.join("o.mp4").to_str().unwrap(), "--model", file.to_str().unwrap()]);
+    assert!(!o.status.success() && stderr(&o).contains("a-file"), "{}", stderr(&o));
+    assert!(std::fs::read(&input).unwrap() == before);
+    assert!(!d.join("o.mp4").exists());
+}
