@@ -278,8 +278,7 @@ pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize) -> crat
     let mut out = Vec::new();
     for &arch in archs {
         let device = Device::flex().autodiff();
-        device.seed(7);
-        let mut model = crate::model::Net::new(arch, &device);
+        let mut model = crate::model::Net::seeded(arch, &device, 7);
         let mut optim = AdamConfig::new().init();
         let huber = HuberLossConfig::new(0.02).init();
         let data = |n: usize, dev: &Device| {

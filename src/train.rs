@@ -598,9 +598,8 @@ impl Trainer {
         let dir = PathBuf::from(&cfg.output.dir);
         std::fs::create_dir_all(&dir).map_err(|e| Error::Io { path: dir.clone(), source: e })?;
         let device = Device::flex().autodiff();
-        // Weight initialisation draws from burn's generator: seed it from the config.
-        device.seed(hash(&[cfg.seed, hash_str("init")]));
-        let mut model = Net::new(cfg.model, &device);
+        // Initial weights are a function of the config's seed alone.
+        let mut model = Net::seeded(cfg.model, &device, hash(&[cfg.seed, hash_str("init")]));
         if cfg.optim.zero_init {
             model = model.zero_last_layer(&device);
         }
@@ -700,8 +699,8 @@ impl Trainer {
         }
         let lr = cfg.lr_at(step);
         let grads = GradientsParams::from_grads(loss.backward(), &self.model);
-        let model = std::mem::replace(&mut self.model, Net::new(Arch::Shallow { width: 1 }, &self.device));
-        self.model = self.optim.step(lr, model, grads);
+        // The module holds tensor handles: cloning it is cheap.
+        self.model = self.optim.step(lr, self.model.clone(), grads);
         self.losses.push(LossPoint { step: step + 1, loss: lv, lr });
         self.step += 1;
         let done = self.step;

@@ -194,12 +194,42 @@ pub enum Net {
     Shallow(Shallow),
 }
 
+/// Forces lazily initialised parameters to draw their values now.
+struct Materialize;
+
+impl burn::module::ModuleVisitor for Materialize {
+    fn visit_float<const D: usize>(&mut self, p: &burn::module::Param<Tensor<D>>) {
+        let _ = p.val();
+    }
+}
+
+/// burn's random generator is shared by the whole process and parameters draw from it lazily,
+/// at first use: every network this crate builds takes this lock, (optionally) seeds, builds
+/// and materialises its parameters, so no other draw can fall in between.
+static INIT: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
 impl Net {
+    /// A network with random initial weights (from burn's unseeded generator).
     pub fn new(arch: Arch, device: &Device) -> Net {
-        match arch {
+        let _guard = INIT.lock().unwrap_or_else(|e| e.into_inner());
+        Net::build(arch, device)
+    }
+
+    /// A network whose initial weights are a function of `seed` alone, whatever else the
+    /// process does at the same time.
+    pub fn seeded(arch: Arch, device: &Device, seed: u64) -> Net {
+        let _guard = INIT.lock().unwrap_or_else(|e| e.into_inner());
+        device.seed(seed);
+        Net::build(arch, device)
+    }
+
+    fn build(arch: Arch, device: &Device) -> Net {
+        let net = match arch {
             Arch::Unet { base } => Net::Unet(UNet::new(base, device)),
             Arch::Shallow { width } => Net::Shallow(Shallow::new(width, device)),
-        }
+        };
+        net.visit(&mut Materialize);
+        net
     }
 
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
