@@ -101,6 +101,38 @@ pub struct DeblurReport {
     pub audio: &'static str,
 }
 
+impl DeblurReport {
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        input: &Path,
+        output: &Path,
+        model: &str,
+        frames: u64,
+        (width, height): (usize, usize),
+        fps: Option<f64>,
+        tiling: Tiling,
+        t0: Instant,
+        audio: &'static str,
+    ) -> DeblurReport {
+        let seconds = t0.elapsed().as_secs_f64();
+        DeblurReport {
+            version: env!("CARGO_PKG_VERSION"),
+            input: input.display().to_string(),
+            output: output.display().to_string(),
+            model: model.into(),
+            frames,
+            width,
+            height,
+            fps,
+            tile: tiling.tile,
+            overlap: tiling.overlap,
+            seconds,
+            frames_per_s: frames as f64 / seconds,
+            audio,
+        }
+    }
+}
+
 /// Where a file is written before it is renamed into place (same folder, same extension, so
 /// FFmpeg picks the same container).
 fn temp_for(path: &Path) -> PathBuf {
@@ -165,22 +197,17 @@ pub fn video(
             return Err(e);
         }
     };
-    let secs = t0.elapsed().as_secs_f64();
-    Ok(DeblurReport {
-        version: env!("CARGO_PKG_VERSION"),
-        input: input.display().to_string(),
-        output: output.display().to_string(),
-        model: model_name.into(),
+    Ok(DeblurReport::new(
+        input,
+        output,
+        model_name,
         frames,
-        width: w,
-        height: h,
-        fps: Some(reader.info.fps),
-        tile: tiling.tile,
-        overlap: tiling.overlap,
-        seconds: secs,
-        frames_per_s: frames as f64 / secs,
-        audio: "not copied: deblur writes the video stream only",
-    })
+        (w, h),
+        Some(reader.info.fps),
+        tiling,
+        t0,
+        "not copied: deblur writes the video stream only",
+    ))
 }
 
 /// Deblurs every PNG in a folder into a folder, keeping the names.
@@ -205,22 +232,7 @@ pub fn images(net: &Net, model_name: &str, input: &Path, output: &Path, tiling: 
         let dst = output.join(f.file_name().expect("a file"));
         write_atomic(&dst, |wr| png_io::write_rgb8(wr, fw, fh, &out))?;
     }
-    let secs = t0.elapsed().as_secs_f64();
-    Ok(DeblurReport {
-        version: env!("CARGO_PKG_VERSION"),
-        input: input.display().to_string(),
-        output: output.display().to_string(),
-        model: model_name.into(),
-        frames: files.len() as u64,
-        width: w,
-        height: h,
-        fps: None,
-        tile: tiling.tile,
-        overlap: tiling.overlap,
-        seconds: secs,
-        frames_per_s: files.len() as f64 / secs,
-        audio: "none (images)",
-    })
+    Ok(DeblurReport::new(input, output, model_name, files.len() as u64, (w, h), None, tiling, t0, "none (images)"))
 }
 
 /// Loads `--model`, or the embedded default.

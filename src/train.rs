@@ -322,8 +322,14 @@ impl Stream {
     }
 
     fn refill(&mut self) -> Result<bool> {
+        let mut read_epochs = 0;
         while self.pending.is_empty() {
             if self.queue.is_empty() {
+                // A whole pass over the shards gave no training sample.
+                if read_epochs == 1 {
+                    return Ok(false);
+                }
+                read_epochs += 1;
                 let mut order = self.shards.clone();
                 let mut r = Rng::new(hash(&[self.seed, self.epoch, hash_str("shard-order")]));
                 for i in (1..order.len()).rev() {
@@ -336,8 +342,8 @@ impl Stream {
             let s = self.queue.pop().expect("refilled");
             let pairs = read_shard(&s, self.size)?;
             self.pending.extend(pairs.into_iter().filter(|p| !is_validation(self.seed, p.input_index, self.fraction)));
-            if self.pending.is_empty() && self.queue.is_empty() && self.epoch > 1000 {
-                return Ok(false);
+            if !self.pending.is_empty() {
+                read_epochs = 0;
             }
         }
         Ok(true)
@@ -518,8 +524,8 @@ pub fn load_model(path: &Path, device: &Device) -> Result<(Net, Arch)> {
 /// # Errors
 /// As [`load_model`].
 pub fn load_model_bytes(bytes: &[u8], name: &str, device: &Device) -> Result<(Net, Arch)> {
-    let path = Path::new(name);
     let bytes = bytes.to_vec();
+    let path = Path::new(name);
     let arch = read_arch(&bytes).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
     let mut net = Net::new(arch, device);
     let mut store = SafetensorsStore::from_bytes(Some(bytes));

@@ -268,7 +268,8 @@ fn blur_core(
     });
     // Phase 3: sum the ranks in order (deterministic), one inverse per channel.
     let outs: Vec<Mutex<Vec<f32>>> = (0..3).map(|_| Mutex::new(Vec::new())).collect();
-    let slots = &ws.slots;
+    // The slots are overwritten every window, so the ranks are summed into slot 0 in place.
+    let chans: Vec<Mutex<&mut Vec<Vec<Complex32>>>> = ws.slots.iter_mut().map(Mutex::new).collect();
     let next = AtomicUsize::new(0);
     run_workers(workers.min(3), |w| {
         let mut conv = convs[w].lock().expect("conv lock");
@@ -278,11 +279,12 @@ fn blur_core(
             if c >= 3 {
                 break;
             }
-            let mut sum = slots[c][0].clone();
-            for slot in &slots[c][1..] {
-                mul_acc_add(&mut sum, slot);
+            let mut ranks = chans[c].lock().expect("channel");
+            let (first, rest) = ranks.split_first_mut().expect("rank 0");
+            for slot in rest.iter() {
+                mul_acc_add(first, slot);
             }
-            conv.inverse(&mut sum, &mut full);
+            conv.inverse(first, &mut full);
             let mut o = Vec::with_capacity(rw * rh);
             for y in 0..rh {
                 o.extend_from_slice(&full[(y + m) * wp + m..(y + m) * wp + m + rw]);
