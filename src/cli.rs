@@ -72,15 +72,51 @@ pub enum Command {
         /// A model written by `pipeline train`; default: the shipped shallow model (coded camera).
         #[arg(long)]
         model: Option<PathBuf>,
-        /// Tile size in pixels (frames are processed in tiles with blended seams).
-        #[arg(long, default_value_t = 256)]
-        tile: usize,
-        /// Overlap between tiles in pixels.
-        #[arg(long, default_value_t = 32)]
-        overlap: usize,
+        /// Tile size in pixels (frames are processed in tiles with blended seams); default 256.
+        #[arg(long)]
+        tile: Option<usize>,
+        /// Overlap between tiles in pixels; default 32.
+        #[arg(long)]
+        overlap: Option<usize>,
         /// Lossless output (FFV1 RGB in .mkv) instead of H.264.
         #[arg(long)]
         lossless: bool,
+        /// A deblur file ([deblur] model, tile, overlap, lossless); default: pipelines/deblur.toml (embedded).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Override one key of the deblur file: --set deblur.tile=512 (repeatable).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        sets: Vec<String>,
+        #[arg(long, value_enum, default_value_t = ProgressMode::Auto)]
+        progress: ProgressMode,
+    },
+    /// Score a model the way the paper's Table 1 does: windows of N = 7..13 frames from your
+    /// videos, noise sigma 0..3, PSNR/SSIM (RGB and Y) of the deblurred frame and of the blurred
+    /// input against the sharp middle frame.
+    #[cfg(all(feature = "train", feature = "ffmpeg"))]
+    #[command(
+        after_help = "Examples:\n  pipeline eval clip.mp4 -o eval-out/                         the shipped model, coded camera\n  pipeline eval clips/ --model models/unet16-conventional/model.safetensors --camera conventional -o eval-conv/\n  pipeline eval clip.mp4 --set eval.crop=256 --set 'eval.windows=[9]'\n\nWrites eval.json (every window, the means, the config), eval.md (Table 1 and per-sigma\ntables) and examples/*.png (blurred | deblurred | sharp). Keys: pipelines/eval.toml (embedded)."
+    )]
+    Eval {
+        /// Videos (files, folders or globs) at a high frame rate: each frame is one sub-frame.
+        #[arg(required = true)]
+        videos: Vec<String>,
+        /// Output folder.
+        #[arg(short, long, default_value = "eval-out")]
+        out: PathBuf,
+        /// A model written by `pipeline train`; default: the shipped shallow model (coded camera).
+        #[arg(long)]
+        model: Option<PathBuf>,
+        /// The camera that blurs the test windows (overrides camera.type); use the one the model
+        /// was trained for.
+        #[arg(long, value_enum)]
+        camera: Option<CameraKind>,
+        /// An eval file; default: pipelines/eval.toml (embedded).
+        #[arg(long)]
+        config: Option<PathBuf>,
+        /// Override one key: --set eval.crop=256 (repeatable).
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        sets: Vec<String>,
         #[arg(long, value_enum, default_value_t = ProgressMode::Auto)]
         progress: ProgressMode,
     },
@@ -373,6 +409,16 @@ fn run_plan(table: toml::Table, origin: &str, out: Option<&PathBuf>, c: &RunComm
 /// Checks a TOML file of any kind `pipeline` reads: a training file (`[model]`), an optics
 /// file (`[optics]`/`[camera]` only) or a pipeline; says what it is.
 fn describe(table: toml::Table, origin: &str) -> crate::Result<String> {
+    #[cfg(all(feature = "train", feature = "ffmpeg"))]
+    if table.contains_key("eval") {
+        let f = crate::eval::EvalFile::from_table(table, origin)?;
+        return Ok(format!("eval file: N {:?}, sigma {:?}, camera {}", f.eval.windows, f.eval.sigmas, f.camera.kind.name()));
+    }
+    #[cfg(feature = "train")]
+    if table.contains_key("deblur") {
+        let f = crate::deblur::DeblurFile::from_table(table, origin)?;
+        return Ok(format!("deblur file: tiles {} px, overlap {}", f.deblur.tile, f.deblur.overlap));
+    }
     #[cfg(feature = "train")]
     if table.contains_key("model") {
         let cfg: crate::train::TrainConfig = toml::Value::Table(table)
@@ -452,14 +498,24 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             Ok(())
         }
         #[cfg(feature = "train")]
-        Command::Deblur { input, out, model, tile, overlap, lossless, progress } => {
+        Command::Deblur { input, out, model, tile, overlap, lossless, config, sets, progress } => {
             let same = input.canonicalize().ok().zip(out.canonicalize().ok()).is_some_and(|(a, b)| a == b) || input == out;
             if same {
                 bail!("{}: the output is the input; choose another output path", out.display());
             }
+            let table = match &config {
+                Some(p) => crate::config::load(p, &sets)?,
+                None => crate::config::parse(crate::deblur::DEBLUR_TOML, "pipelines/deblur.toml (embedded)", &sets)?,
+            };
+            let origin = config.as_ref().map_or("pipelines/deblur.toml (embedded)".into(), |p| p.display().to_string());
+            let mut d = crate::deblur::DeblurFile::from_table(table, &origin)?.deblur;
+            d.tile = tile.unwrap_or(d.tile);
+            d.overlap = overlap.unwrap_or(d.overlap);
+            let lossless = lossless || d.lossless;
+            let model = model.or_else(|| (!d.model.is_empty()).then(|| PathBuf::from(&d.model)));
             let device = burn::tensor::Device::flex();
             let (net, name) = crate::deblur::load(model.as_deref(), &device)?;
-            let tiling = crate::deblur::Tiling { tile, overlap };
+            let tiling = crate::deblur::Tiling { tile: d.tile, overlap: d.overlap };
             let r = if input.is_dir() || input.to_string_lossy().contains('*') {
                 crate::deblur::images(&net, &name, &input, &out, tiling)?
             } else {
@@ -478,6 +534,25 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
                 r.model,
                 out.display()
             );
+            Ok(())
+        }
+        #[cfg(all(feature = "train", feature = "ffmpeg"))]
+        Command::Eval { videos, out, model, camera, config, sets, progress } => {
+            let table = match &config {
+                Some(p) => crate::config::load(p, &sets)?,
+                None => crate::config::parse(crate::eval::EVAL_TOML, "pipelines/eval.toml (embedded)", &sets)?,
+            };
+            let origin = config.as_ref().map_or("pipelines/eval.toml (embedded)".into(), |p| p.display().to_string());
+            let mut f = crate::eval::EvalFile::from_table(table, &origin)?;
+            if let Some(k) = camera {
+                f.camera.kind = k;
+            }
+            let device = burn::tensor::Device::flex();
+            let (net, name) = crate::deblur::load(model.as_deref(), &device)?;
+            let bar = progress == ProgressMode::Auto && std::io::IsTerminal::is_terminal(&std::io::stderr());
+            let r = crate::eval::run(&f, &net, &name, &videos, &out, bar)?;
+            println!("{}", crate::eval::markdown(&r));
+            eprintln!("{} windows scored in {:.0} s -> {}", r.records.len(), r.seconds, out.join("eval.md").display());
             Ok(())
         }
         Command::Run(a) => {

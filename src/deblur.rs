@@ -16,6 +16,55 @@ use std::time::Instant;
 /// camera (the best of the shipped models on validation, 0.3 MB).
 pub const DEFAULT_MODEL: &[u8] = include_bytes!("../models/shallow32-coded/model.safetensors");
 
+/// The default deblur file, embedded.
+pub const DEBLUR_TOML: &str = include_str!("../pipelines/deblur.toml");
+
+/// A deblur file (`pipelines/deblur.toml`): `[deblur]`.
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DeblurFile {
+    #[serde(default)]
+    pub deblur: DeblurConfig,
+}
+
+/// `[deblur]`.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct DeblurConfig {
+    /// A model file; empty: the embedded default.
+    pub model: String,
+    pub tile: usize,
+    pub overlap: usize,
+    pub lossless: bool,
+}
+
+impl Default for DeblurConfig {
+    fn default() -> Self {
+        DeblurConfig { model: String::new(), tile: 256, overlap: 32, lossless: false }
+    }
+}
+
+impl DeblurFile {
+    /// Parses a deblur file (after `--set`), checking every value.
+    ///
+    /// # Errors
+    /// An unknown key or a bad value, named.
+    pub fn from_table(table: toml::Table, origin: &str) -> Result<DeblurFile> {
+        let f: DeblurFile = toml::Value::Table(table)
+            .try_into()
+            .map_err(|e: toml::de::Error| Error::ConfigText(format!("{origin}: {}", e.to_string().trim())))?;
+        let mut c = crate::optics::config::Checker::new("deblur");
+        c.range_usize("tile", f.deblur.tile, 16, 8192);
+        if f.deblur.overlap * 2 > f.deblur.tile {
+            c.fail("overlap", format!("{} is more than half the tile ({})", f.deblur.overlap, f.deblur.tile));
+        }
+        if !c.errors.is_empty() {
+            return Err(Error::Config(c.errors));
+        }
+        Ok(f)
+    }
+}
+
 /// Tiling of a frame: square tiles of `tile` pixels overlapping by `overlap`.
 #[derive(Debug, Clone, Copy)]
 pub struct Tiling {

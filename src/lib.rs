@@ -13,6 +13,8 @@ pub mod config;
 #[cfg(feature = "train")]
 pub mod deblur;
 pub mod error;
+#[cfg(all(feature = "train", feature = "ffmpeg"))]
+pub mod eval;
 pub mod frame;
 pub mod graph;
 pub mod io;

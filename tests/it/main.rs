@@ -4,6 +4,8 @@ mod bad_input;
 mod common;
 #[cfg(feature = "train")]
 mod deblur;
+#[cfg(feature = "train")]
+mod eval;
 mod generate;
 mod psf_cli;
 #[cfg(feature = "train")]

@@ -1,0 +1,466 @@
+//! `pipeline eval`: the paper's Table 1 on your own footage. Test windows of N frames (7, 9, 11
+//! and 13 by default) centred on the same sharp frames, blurred by a camera, with AWGN of each
+//! sigma (0 to 3), deblurred by a model, and scored against the sharp middle frame next to the
+//! blurred input's own score (PSNR/SSIM, RGB and Y, 8-bit sRGB, [`crate::metrics::CONVENTION`]).
+//!
+//! Windows of every length share their centre frame, so the rows of the table differ only in
+//! the length of the motion, and every sigma of a window shares the same noise pattern (scaled),
+//! so the columns differ only in the noise level.
+
+use crate::config::expand_paths;
+use crate::deblur::{run_frame, Tiling};
+use crate::frame::Frame;
+use crate::io::font;
+use crate::io::video::VideoReader;
+use crate::io::write_atomic;
+use crate::metrics::{quality, Quality};
+use crate::model::Net;
+use crate::optics::config::Checker;
+use crate::optics::transfer::{Curve, Encoder};
+use crate::optics::{Camera, CameraConfig, ConfigError, OpticsConfig};
+use crate::rng::{hash, hash_str};
+use crate::stage::blur::Blurrer;
+use crate::stage::noise::quantise;
+use crate::stage::Linearize;
+use crate::{Error, Result};
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+/// An eval file (`pipelines/eval.toml`): `seed`, `[eval]`, `[camera]`, `[optics]`.
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct EvalFile {
+    #[serde(default)]
+    pub seed: u64,
+    #[serde(default)]
+    pub eval: EvalConfig,
+    #[serde(default)]
+    pub camera: CameraConfig,
+    #[serde(default)]
+    pub optics: OpticsConfig,
+}
+
+/// `[eval]`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EvalConfig {
+    /// Window lengths N (odd: each window is centred on its sharp frame).
+    pub windows: Vec<usize>,
+    /// Noise sigmas on the 0-255 scale (divided by the camera's light throughput, as in `noise`).
+    pub sigmas: Vec<f64>,
+    /// Sharp frames per video; each is the centre of one window of every length.
+    pub windows_per_video: usize,
+    /// Frames between centres (0: the longest window, so windows do not overlap).
+    pub spacing: usize,
+    /// Frames skipped at the start of each video.
+    pub skip: usize,
+    /// Side of a centred square crop to score (0: the whole frame). The blur still reads the
+    /// real pixels around the crop.
+    pub crop: usize,
+    /// Side-by-side PNGs (blurred | deblurred | sharp) to write.
+    pub examples: usize,
+    pub tile: usize,
+    pub overlap: usize,
+    pub curve: Curve,
+    /// FFT worker threads for the blur (0: all cores).
+    pub threads: usize,
+    pub rank_tolerance: f64,
+}
+
+impl Default for EvalConfig {
+    fn default() -> Self {
+        EvalConfig {
+            windows: vec![7, 9, 11, 13],
+            sigmas: vec![0.0, 1.0, 2.0, 3.0],
+            windows_per_video: 4,
+            spacing: 0,
+            skip: 0,
+            crop: 0,
+            examples: 4,
+            tile: 256,
+            overlap: 32,
+            curve: Curve::Srgb,
+            threads: 0,
+            rank_tolerance: 1e-3,
+        }
+    }
+}
+
+impl EvalFile {
+    /// Every value error, each naming its key.
+    pub fn validate(&self) -> Vec<ConfigError> {
+        let e = &self.eval;
+        let mut c = Checker::new("eval");
+        if e.windows.is_empty() {
+            c.fail("windows", "names no window length");
+        }
+        for &n in &e.windows {
+            c.range_usize("windows", n, 1, 63);
+            if n % 2 == 0 {
+                c.fail("windows", format!("{n} is even; windows are centred on their sharp middle frame, so N must be odd"));
+            }
+        }
+        if e.sigmas.is_empty() {
+            c.fail("sigmas", "names no noise level");
+        }
+        for &s in &e.sigmas {
+            c.range("sigmas", s, 0.0, 50.0);
+        }
+        c.range_usize("windows_per_video", e.windows_per_video, 1, 100_000);
+        c.range_usize("tile", e.tile, 16, 8192);
+        if e.overlap * 2 > e.tile {
+            c.fail("overlap", format!("{} is more than half the tile ({})", e.overlap, e.tile));
+        }
+        if e.crop != 0 {
+            c.range_usize("crop", e.crop, 11, 16384);
+        }
+        c.range("rank_tolerance", e.rank_tolerance, 0.0, 0.1);
+        let mut errs = c.errors;
+        errs.extend(self.camera.validate("camera"));
+        errs.extend(self.optics.validate("optics"));
+        errs
+    }
+
+    /// Reads an eval file, with `--set` overrides.
+    ///
+    /// # Errors
+    /// Unreadable, not TOML, an unknown key or a bad value (named).
+    pub fn from_table(table: toml::Table, origin: &str) -> Result<EvalFile> {
+        let f: EvalFile = toml::Value::Table(table)
+            .try_into()
+            .map_err(|e: toml::de::Error| Error::ConfigText(format!("{origin}: {}", e.to_string().trim())))?;
+        let errs = f.validate();
+        if !errs.is_empty() {
+            return Err(Error::Config(errs));
+        }
+        Ok(f)
+    }
+}
+
+/// One scored window at one noise level.
+#[derive(Debug, Clone, Serialize)]
+pub struct Record {
+    pub video: String,
+    /// Index of the sharp (centre) frame in the video.
+    pub frame: u64,
+    pub window: usize,
+    pub sigma: f64,
+    pub blurred: Quality,
+    pub deblurred: Quality,
+    /// The side-by-side PNG of this record, if one was written.
+    pub example: Option<String>,
+}
+
+/// Means over records.
+#[derive(Debug, Clone, Serialize)]
+pub struct Cell {
+    pub window: usize,
+    /// `None`: the mean over every sigma (the paper's Table 1).
+    pub sigma: Option<f64>,
+    pub count: usize,
+    pub blurred: Quality,
+    pub deblurred: Quality,
+}
+
+/// `eval.json`.
+#[derive(Debug, Serialize)]
+pub struct EvalReport {
+    pub version: &'static str,
+    pub model: String,
+    pub camera: String,
+    pub convention: &'static str,
+    pub config: EvalFile,
+    pub videos: Vec<String>,
+    pub region: [usize; 4],
+    pub seconds: f64,
+    /// Rows of Table 1: per N, the mean over all sigmas.
+    pub table: Vec<Cell>,
+    /// Per N and sigma.
+    pub per_sigma: Vec<Cell>,
+    pub records: Vec<Record>,
+}
+
+/// Layout of the side-by-side PNGs: a label bar of `LABEL_H` pixels on top, then the blurred,
+/// deblurred and sharp panels, each `GAP` pixels apart.
+pub const LABEL_H: usize = 14;
+pub const GAP: usize = 4;
+
+fn mean_quality(q: &[&Quality]) -> Quality {
+    let n = q.len().max(1) as f64;
+    Quality {
+        psnr_rgb: q.iter().map(|v| v.psnr_rgb).sum::<f64>() / n,
+        ssim_rgb: q.iter().map(|v| v.ssim_rgb).sum::<f64>() / n,
+        psnr_y: q.iter().map(|v| v.psnr_y).sum::<f64>() / n,
+        ssim_y: q.iter().map(|v| v.ssim_y).sum::<f64>() / n,
+    }
+}
+
+fn cell(records: &[Record], window: usize, sigma: Option<f64>) -> Cell {
+    let sel: Vec<&Record> = records.iter().filter(|r| r.window == window && sigma.is_none_or(|s| r.sigma == s)).collect();
+    Cell {
+        window,
+        sigma,
+        count: sel.len(),
+        blurred: mean_quality(&sel.iter().map(|r| &r.blurred).collect::<Vec<_>>()),
+        deblurred: mean_quality(&sel.iter().map(|r| &r.deblurred).collect::<Vec<_>>()),
+    }
+}
+
+/// The region scored in a `w x h` frame: a centred square of `crop`, or the whole frame.
+fn region(w: usize, h: usize, crop: usize) -> [usize; 4] {
+    if crop == 0 || (crop >= w && crop >= h) {
+        return [0, 0, w, h];
+    }
+    let (cw, ch) = (crop.min(w), crop.min(h));
+    [(w - cw) / 2, (h - ch) / 2, cw, ch]
+}
+
+/// Draws blurred | deblurred | sharp with their PSNR above.
+fn side_by_side(path: &Path, w: usize, h: usize, panels: [&[u8]; 3], labels: [String; 3]) -> Result<()> {
+    let tw = 3 * w + 2 * GAP;
+    let th = LABEL_H + h;
+    let mut planes: [Vec<f32>; 3] = std::array::from_fn(|_| vec![1.0f32; tw * th]);
+    for (i, p) in panels.iter().enumerate() {
+        let x0 = i * (w + GAP);
+        for y in 0..h {
+            for x in 0..w {
+                for (c, plane) in planes.iter_mut().enumerate() {
+                    plane[(LABEL_H + y) * tw + x0 + x] = p[(y * w + x) * 3 + c] as f32 / 255.0;
+                }
+            }
+        }
+        // Scale 2 when the label fits the panel, else the 3x5 font at scale 1.
+        let scale = if font::text_width(&labels[i], 2) <= w { 2 } else { 1 };
+        font::draw_text(&mut planes, tw, x0 + 1, 2, &labels[i], scale, [0.0, 0.0, 0.0]);
+    }
+    let rgb: Vec<u8> = (0..tw * th).flat_map(|i| [0, 1, 2].map(|c| (planes[c][i] * 255.0).round() as u8)).collect();
+    write_atomic(path, |wr| crate::io::png::write_rgb8(wr, tw, th, &rgb))
+}
+
+/// Decodes the frames `first..=last` of a video (stopping early at its end), tagged linear.
+fn read_frames(path: &Path, first: u64, last: u64, curve: Curve) -> Result<Vec<Arc<Frame>>> {
+    let name = |e: String| Error::Invalid(format!("{}: {e}", path.display()));
+    let mut reader = VideoReader::open(path).map_err(name)?;
+    let lin = Linearize::new(curve);
+    let mut out = Vec::new();
+    let mut i = 0u64;
+    while i <= last {
+        let Some(f) = reader.next_frame().map_err(name)? else { break };
+        if i >= first {
+            out.push(Arc::new(lin.apply(&f)));
+        }
+        i += 1;
+    }
+    Ok(out)
+}
+
+/// Runs the evaluation and writes `eval.json`, `eval.md` and `examples/` under `out`.
+///
+/// # Errors
+/// A video that cannot be read or is too short for one window of the longest length (named),
+/// an output that cannot be written.
+pub fn run(f: &EvalFile, net: &Net, model: &str, videos: &[String], out: &Path, progress: bool) -> Result<EvalReport> {
+    let t0 = Instant::now();
+    let e = &f.eval;
+    let paths = expand_paths(videos, &["mp4", "mkv", "mov", "avi", "webm", "m4v", "y4m", "nut"])?;
+    std::fs::create_dir_all(out.join("examples")).map_err(|err| Error::Io { path: out.to_path_buf(), source: err })?;
+    let camera = Arc::new(Camera::new(&f.optics, &f.camera));
+    let sigma_scale = 1.0 / camera.light_throughput().max(1e-6);
+    let maxn = *e.windows.iter().max().expect("validated non-empty");
+    let half = (maxn / 2) as u64;
+    let spacing = if e.spacing == 0 { maxn } else { e.spacing } as u64;
+    let mut blurrers =
+        e.windows.iter().map(|&n| Blurrer::new(camera.clone(), n, e.threads, e.rank_tolerance)).collect::<Result<Vec<_>>>()?;
+    let enc = Encoder::new(e.curve);
+    let device = burn::tensor::Device::flex();
+    let tiling = Tiling { tile: e.tile, overlap: e.overlap };
+    let total = (paths.len() * e.windows_per_video * e.windows.len() * e.sigmas.len()) as u64;
+    let bar = progress.then(|| {
+        let b = indicatif::ProgressBar::new(total);
+        b.set_style(indicatif::ProgressStyle::with_template("eval {bar:30} {pos}/{len} windows {per_sec} {msg}").expect("template"));
+        b
+    });
+    let top_sigma = e.sigmas.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+    let mut records = Vec::new();
+    let mut examples_left = e.examples;
+    let mut reg = [0; 4];
+    for (vi, path) in paths.iter().enumerate() {
+        let first = e.skip as u64;
+        let last = first + 2 * half + spacing * (e.windows_per_video as u64 - 1);
+        let frames = read_frames(path, first, last, e.curve)?;
+        if (frames.len() as u64) < 2 * half + 1 {
+            return Err(Error::Invalid(format!(
+                "{}: {} frames after skipping {}, fewer than one window of {maxn}",
+                path.display(),
+                frames.len(),
+                e.skip
+            )));
+        }
+        let (w, h) = (frames[0].width, frames[0].height);
+        reg = region(w, h, e.crop);
+        let [rx, ry, rw, rh] = reg;
+        if rw < 11 || rh < 11 {
+            return Err(Error::Invalid(format!("{}: {w}x{h} is too small to score (SSIM needs 11x11)", path.display())));
+        }
+        let video = path.display().to_string();
+        let centres = (0..e.windows_per_video as u64).map(|k| half + k * spacing).take_while(|&c| c + half < frames.len() as u64);
+        for c in centres {
+            let mid = &frames[c as usize];
+            let sharp = quantise(&mid.linear_crop(rx, ry, rw, rh), rw, rh, rx, ry, &enc, 0.0, 0);
+            for (ni, &n) in e.windows.iter().enumerate() {
+                let start = (c - (n / 2) as u64) as usize;
+                let blur = blurrers[ni].blur_region(&frames[start..start + n], rx as isize, ry as isize, rw, rh);
+                let key = hash(&[f.seed, vi as u64, first + c, n as u64, hash_str("eval-noise")]);
+                for &sigma in &e.sigmas {
+                    let blurred = quantise(&blur, rw, rh, rx, ry, &enc, sigma * sigma_scale, key);
+                    let deblurred = run_frame(net, &blurred, rw, rh, tiling, &device);
+                    let (qb, qd) = (quality(&blurred, &sharp, rw, rh), quality(&deblurred, &sharp, rw, rh));
+                    let example = (examples_left > 0 && sigma == top_sigma).then(|| {
+                        examples_left -= 1;
+                        let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+                        format!("examples/{vi:02}-{stem}-f{:05}-n{n:02}-s{sigma}.png", first + c)
+                    });
+                    if let Some(name) = &example {
+                        side_by_side(
+                            &out.join(name),
+                            rw,
+                            rh,
+                            [&blurred, &deblurred, &sharp],
+                            [
+                                format!("N={n} SIGMA={sigma} IN {:.2} DB", qb.psnr_rgb),
+                                format!("DEBLURRED {:.2} DB", qd.psnr_rgb),
+                                format!("SHARP FRAME {}", first + c),
+                            ],
+                        )?;
+                    }
+                    records.push(Record { video: video.clone(), frame: first + c, window: n, sigma, blurred: qb, deblurred: qd, example });
+                    if let Some(b) = &bar {
+                        b.inc(1);
+                        b.set_message(format!("{} N={n} sigma={sigma}", path.file_name().unwrap_or_default().to_string_lossy()));
+                    }
+                }
+            }
+        }
+    }
+    if let Some(b) = bar {
+        b.finish_and_clear();
+    }
+    let table = e.windows.iter().map(|&n| cell(&records, n, None)).collect();
+    let per_sigma =
+        e.windows.iter().flat_map(|&n| e.sigmas.iter().map(move |&s| (n, s))).map(|(n, s)| cell(&records, n, Some(s))).collect();
+    let report = EvalReport {
+        version: env!("CARGO_PKG_VERSION"),
+        model: model.into(),
+        camera: f.camera.kind.name().into(),
+        convention: crate::metrics::CONVENTION,
+        config: f.clone(),
+        videos: paths.iter().map(|p| p.display().to_string()).collect(),
+        region: reg,
+        seconds: t0.elapsed().as_secs_f64(),
+        table,
+        per_sigma,
+        records,
+    };
+    let json = serde_json::to_vec_pretty(&report).expect("json");
+    write_atomic(&out.join("eval.json"), |w| w.write_all(&json))?;
+    let md = markdown(&report);
+    write_atomic(&out.join("eval.md"), |w| w.write_all(md.as_bytes()))?;
+    Ok(report)
+}
+
+fn pair(q: &Quality, y: bool) -> String {
+    if y {
+        format!("{:.2} / {:.4}", q.psnr_y, q.ssim_y)
+    } else {
+        format!("{:.2} / {:.4}", q.psnr_rgb, q.ssim_rgb)
+    }
+}
+
+fn rows(cells: &[Cell], with_sigma: bool) -> String {
+    let mut s = String::new();
+    s.push_str(if with_sigma { "| N | sigma " } else { "| N " });
+    s.push_str("| blurred input (RGB) | deblurred (RGB) | gain dB | blurred input (Y) | deblurred (Y) | gain dB | windows |\n");
+    s.push_str(if with_sigma { "|---|---" } else { "|---" });
+    s.push_str("|---|---|---|---|---|---|---|\n");
+    for c in cells {
+        s.push_str(&format!("| N={} ", c.window));
+        if with_sigma {
+            s.push_str(&format!("| {} ", c.sigma.unwrap_or(f64::NAN)));
+        }
+        s.push_str(&format!(
+            "| {} | {} | {:+.2} | {} | {} | {:+.2} | {} |\n",
+            pair(&c.blurred, false),
+            pair(&c.deblurred, false),
+            c.deblurred.psnr_rgb - c.blurred.psnr_rgb,
+            pair(&c.blurred, true),
+            pair(&c.deblurred, true),
+            c.deblurred.psnr_y - c.blurred.psnr_y,
+            c.count
+        ));
+    }
+    s
+}
+
+/// `eval.md`: Table 1 (mean over sigma) and the per-sigma tables, PSNR dB / SSIM.
+pub fn markdown(r: &EvalReport) -> String {
+    let sig: Vec<String> = r.config.eval.sigmas.iter().map(|s| s.to_string()).collect();
+    let mut s = format!(
+        "# pipeline eval\n\nModel: {}  \nCamera: {}  \nVideos: {}  \nScored region: {}x{} at ({}, {})  \nMetrics: {}\n\n",
+        r.model,
+        r.camera,
+        r.videos.join(", "),
+        r.region[2],
+        r.region[3],
+        r.region[0],
+        r.region[1],
+        r.convention
+    );
+    s.push_str(&format!("## Table 1 layout: PSNR dB / SSIM, mean over sigma in {{{}}}\n\n", sig.join(", ")));
+    s.push_str(&rows(&r.table, false));
+    s.push_str("\n## Per noise level\n\n");
+    s.push_str(&rows(&r.per_sigma, true));
+    let ex: Vec<&str> = r.records.iter().filter_map(|x| x.example.as_deref()).collect();
+    if !ex.is_empty() {
+        s.push_str("\n## Examples (blurred | deblurred | sharp)\n\n");
+        for e in ex {
+            s.push_str(&format!("![{e}]({e})\n"));
+        }
+    }
+    s
+}
+
+/// The default eval file, embedded.
+pub const EVAL_TOML: &str = include_str!("../pipelines/eval.toml");
+
+/// Where `eval` writes when no `-o` is given.
+pub fn default_out() -> PathBuf {
+    PathBuf::from("eval-out")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_shipped_eval_file_is_valid_and_even_windows_are_refused() {
+        let t = crate::config::parse(EVAL_TOML, "pipelines/eval.toml", &[]).unwrap();
+        let f = EvalFile::from_table(t, "pipelines/eval.toml").unwrap();
+        assert_eq!(f.eval.windows, vec![7, 9, 11, 13]);
+        assert_eq!(f.eval.sigmas, vec![0.0, 1.0, 2.0, 3.0]);
+        let t = crate::config::parse(EVAL_TOML, "x", &["eval.windows=[7, 8]".into()]).unwrap();
+        let err = EvalFile::from_table(t, "x").unwrap_err().to_string();
+        assert!(err.contains("eval.windows") && err.contains("8 is even"), "{err}");
+        let t = crate::config::parse(EVAL_TOML, "x", &["eval.sigma=[1]".into()]).unwrap();
+        let err = EvalFile::from_table(t, "x").unwrap_err().to_string();
+        assert!(err.contains("sigma"), "{err}");
+    }
+
+    #[test]
+    fn region_is_centred() {
+        assert_eq!(region(320, 240, 0), [0, 0, 320, 240]);
+        assert_eq!(region(320, 240, 128), [96, 56, 128, 128]);
+        assert_eq!(region(100, 60, 80), [10, 0, 80, 60]);
+    }
+}
