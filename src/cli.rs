@@ -58,13 +58,13 @@ pub enum Command {
         #[arg(long, value_enum, default_value_t = ProgressMode::Auto)]
         progress: ProgressMode,
     },
-    /// Deblur a video (same size and frame rate) or a folder of PNG images (same names).
+    /// Deblur a video (same size and frame rate) or a folder of images (same names and formats).
     #[cfg(feature = "train")]
     #[command(
         after_help = "Examples:\n  pipeline deblur coded.mp4 -o sharp.mp4                  the shipped default model\n  pipeline deblur coded.mkv -o sharp.mkv --lossless       FFV1, lossless RGB\n  pipeline deblur frames/ -o sharp/ --model runs/unet16/model-0000300.safetensors\n\nWrites OUTPUT and OUTPUT.report.json (frames, size, frame rate, frames/s). Audio is not copied."
     )]
     Deblur {
-        /// A video FFmpeg reads, or a folder (or glob) of PNG images.
+        /// A video FFmpeg reads, or a folder (or glob) of PNG, JPEG, TIFF or OpenEXR images.
         input: PathBuf,
         /// Output video (.mp4, .mkv, .mov...) or folder.
         #[arg(short, long)]
@@ -516,10 +516,10 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             let device = burn::tensor::Device::flex();
             let (net, name) = crate::deblur::load(model.as_deref(), &device)?;
             let tiling = crate::deblur::Tiling { tile: d.tile, overlap: d.overlap };
+            let bar = progress == ProgressMode::Auto && std::io::IsTerminal::is_terminal(&std::io::stderr());
             let r = if input.is_dir() || input.to_string_lossy().contains('*') {
-                crate::deblur::images(&net, &name, &input, &out, tiling)?
+                crate::deblur::images(&net, &name, &input, &out, tiling, bar)?
             } else {
-                let bar = progress == ProgressMode::Auto && std::io::IsTerminal::is_terminal(&std::io::stderr());
                 crate::deblur::video(&net, &name, &input, &out, tiling, lossless, bar)?
             };
             let rp = if out.is_dir() { out.join("report.json") } else { PathBuf::from(format!("{}.report.json", out.display())) };

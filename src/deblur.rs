@@ -205,7 +205,6 @@ pub fn video(
     lossless: bool,
     progress: bool,
 ) -> Result<DeblurReport> {
-    use crate::frame::FrameData;
     use crate::io::video::{VideoReader, VideoWriter};
     let t0 = Instant::now();
     let name = |p: &Path, e: String| Error::Invalid(format!("{}: {e}", p.display()));
@@ -217,18 +216,10 @@ pub fn video(
     let tmp = temp_for(output);
     let mut writer = VideoWriter::create(&tmp, w, h, reader.rate, lossless).map_err(|e| name(output, e))?;
     let device = Device::flex();
-    let bar = progress.then(|| {
-        let b = indicatif::ProgressBar::new(reader.info.frames_announced.unwrap_or(0));
-        b.set_style(indicatif::ProgressStyle::with_template("deblur {bar:30} {pos}/{len} {per_sec}").expect("template"));
-        b
-    });
+    let bar = progress.then(|| progress_bar(reader.info.frames_announced.unwrap_or(0)));
     let result = (|| -> Result<u64> {
         while let Some(f) = reader.next_frame().map_err(|e| name(input, e))? {
-            let rgb: Vec<u8> = match &*f.data {
-                FrameData::Planar8(p) => (0..w * h).flat_map(|i| [p[0][i], p[1][i], p[2][i]]).collect(),
-                FrameData::Planar16(p) => (0..w * h).flat_map(|i| [0, 1, 2].map(|c| (p[c][i] as f32 / 257.0).round() as u8)).collect(),
-                FrameData::Planar(p) => (0..w * h).flat_map(|i| [0, 1, 2].map(|c| (p[c][i] * 255.0).round() as u8)).collect(),
-            };
+            let rgb = to_rgb8(&f, reader.float);
             let out = run_frame(net, &rgb, w, h, tiling, &device);
             writer.write_rgb8(&out).map_err(|e| name(output, e))?;
             if let Some(b) = &bar {
@@ -259,29 +250,108 @@ pub fn video(
     ))
 }
 
-/// Deblurs every PNG in a folder into a folder, keeping the names.
+/// Interleaved 8-bit encoded RGB of a decoded frame; float frames (OpenEXR) are linear light
+/// and are sRGB-encoded first, as the network sees encoded values.
+pub fn to_rgb8(f: &crate::frame::Frame, float_linear: bool) -> Vec<u8> {
+    use crate::frame::FrameData;
+    let n = f.width * f.height;
+    match &*f.data {
+        FrameData::Planar8(p) => (0..n).flat_map(|i| [p[0][i], p[1][i], p[2][i]]).collect(),
+        FrameData::Planar16(p) => (0..n).flat_map(|i| [0, 1, 2].map(|c| (p[c][i] as f32 / 257.0).round() as u8)).collect(),
+        FrameData::Planar(p) => (0..n)
+            .flat_map(|i| {
+                [0, 1, 2].map(|c| {
+                    let v = p[c][i].clamp(0.0, 1.0);
+                    let e = if float_linear { png_io::srgb_encode(v) } else { v };
+                    (e * 255.0).round() as u8
+                })
+            })
+            .collect(),
+    }
+}
+
+/// Image formats `deblur` reads from a folder, and writes back in the same format.
+pub const IMAGE_EXTENSIONS: [&str; 6] = ["png", "jpg", "jpeg", "tif", "tiff", "exr"];
+
+/// Reads one image as interleaved 8-bit encoded RGB: PNG by our own reader, the others through
+/// FFmpeg's decoders (OpenEXR is linear and gets sRGB-encoded).
+fn read_image(f: &Path, ext: &str) -> Result<(usize, usize, Vec<u8>)> {
+    let bad = |e: String| Error::Invalid(format!("{}: {e}", f.display()));
+    if ext == "png" {
+        let bytes = std::fs::read(f).map_err(|e| Error::Io { path: f.to_path_buf(), source: e })?;
+        return png_io::read_rgb8(&bytes).map_err(bad);
+    }
+    #[cfg(feature = "ffmpeg")]
+    {
+        let (frame, float) = crate::io::video::read_image(f).map_err(bad)?;
+        Ok((frame.width, frame.height, to_rgb8(&frame, float)))
+    }
+    #[cfg(not(feature = "ffmpeg"))]
+    Err(bad("only PNG is read without the ffmpeg feature".into()))
+}
+
+/// Writes one image in the format its extension names: PNG and OpenEXR (linear light, decoded
+/// from sRGB) by our own writers, JPEG and TIFF through FFmpeg's encoders; atomically.
+fn write_image(dst: &Path, ext: &str, w: usize, h: usize, rgb: &[u8]) -> Result<()> {
+    match ext {
+        "png" => write_atomic(dst, |wr| png_io::write_rgb8(wr, w, h, rgb)),
+        "exr" => {
+            let curve = crate::optics::transfer::Curve::Srgb;
+            let planes: [Vec<f32>; 3] =
+                std::array::from_fn(|c| (0..w * h).map(|i| curve.to_linear(rgb[i * 3 + c] as f64 / 255.0) as f32).collect());
+            write_atomic(dst, |wr| crate::io::exr::write_rgb_f32(wr, w, h, [&planes[0], &planes[1], &planes[2]]))
+        }
+        #[cfg(feature = "ffmpeg")]
+        _ => {
+            use crate::io::video::Codec;
+            let codec = if ext.starts_with("tif") { Codec::Tiff } else { Codec::Jpeg };
+            let tmp = temp_for(dst);
+            let res = crate::io::video::write_image(&tmp, w, h, rgb, codec)
+                .map_err(|e| Error::Invalid(format!("{}: {e}", dst.display())))
+                .and_then(|()| std::fs::rename(&tmp, dst).map_err(|e| Error::Io { path: dst.to_path_buf(), source: e }));
+            if res.is_err() {
+                let _ = std::fs::remove_file(&tmp);
+            }
+            res
+        }
+        #[cfg(not(feature = "ffmpeg"))]
+        _ => Err(Error::Invalid(format!("{}: JPEG and TIFF need the ffmpeg feature", dst.display()))),
+    }
+}
+
+/// Deblurs every image (PNG, JPEG, TIFF, OpenEXR) of a folder or glob into a folder, keeping
+/// the names and formats.
 ///
 /// # Errors
-/// An unreadable image (named), a format other than PNG (named), an unwritable output.
-pub fn images(net: &Net, model_name: &str, input: &Path, output: &Path, tiling: Tiling) -> Result<DeblurReport> {
+/// An unreadable image (named), an unwritable output.
+pub fn images(net: &Net, model_name: &str, input: &Path, output: &Path, tiling: Tiling, progress: bool) -> Result<DeblurReport> {
     let t0 = Instant::now();
-    let files = crate::config::expand_paths(&[input.display().to_string()], &["png", "jpg", "jpeg", "tif", "tiff", "exr"])?;
+    let files = crate::config::expand_paths(&[input.display().to_string()], &IMAGE_EXTENSIONS)?;
     std::fs::create_dir_all(output).map_err(|e| Error::Io { path: output.to_path_buf(), source: e })?;
     let device = Device::flex();
+    let bar = progress.then(|| progress_bar(files.len() as u64));
     let (mut w, mut h) = (0, 0);
     for f in &files {
         let ext = f.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
-        if ext != "png" {
-            return Err(Error::Invalid(format!("{}: only PNG images are read so far", f.display())));
-        }
-        let bytes = std::fs::read(f).map_err(|e| Error::Io { path: f.clone(), source: e })?;
-        let (fw, fh, rgb) = png_io::read_rgb8(&bytes).map_err(|e| Error::Invalid(format!("{}: {e}", f.display())))?;
+        let (fw, fh, rgb) = read_image(f, &ext)?;
         (w, h) = (fw, fh);
         let out = run_frame(net, &rgb, fw, fh, tiling, &device);
-        let dst = output.join(f.file_name().expect("a file"));
-        write_atomic(&dst, |wr| png_io::write_rgb8(wr, fw, fh, &out))?;
+        write_image(&output.join(f.file_name().expect("a file")), &ext, fw, fh, &out)?;
+        if let Some(b) = &bar {
+            b.inc(1);
+        }
+    }
+    if let Some(b) = bar {
+        b.finish_and_clear();
     }
     Ok(DeblurReport::new(input, output, model_name, files.len() as u64, (w, h), None, tiling, t0, "none (images)"))
+}
+
+/// The progress bar of `deblur`: frames done, frames/s, time left.
+fn progress_bar(len: u64) -> indicatif::ProgressBar {
+    let b = indicatif::ProgressBar::new(len);
+    b.set_style(indicatif::ProgressStyle::with_template("deblur {bar:30} {pos}/{len} frames {per_sec} eta {eta}").expect("template"));
+    b
 }
 
 /// Loads `--model`, or the embedded default.

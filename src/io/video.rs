@@ -29,6 +29,18 @@ pub struct VideoReader {
     pub bit_depth: u32,
     /// Average frame rate as a fraction (numerator, denominator).
     pub rate: (i32, i32),
+    /// The source is floating point (OpenEXR, float TIFF): frames come as linear-light
+    /// `FrameData::Planar` floats, not clipped or encoded.
+    pub float: bool,
+}
+
+/// Whether a pixel format stores floats.
+fn is_float(p: ff::format::Pixel) -> bool {
+    // SAFETY: av_pix_fmt_desc_get returns null or a pointer to a static descriptor.
+    unsafe {
+        let d = ff::ffi::av_pix_fmt_desc_get(p.into());
+        !d.is_null() && (*d).flags & ff::ffi::AV_PIX_FMT_FLAG_FLOAT as u64 != 0
+    }
 }
 
 /// Bits of the first component of a pixel format.
@@ -77,6 +89,7 @@ impl VideoReader {
             pixel_format: format!("{:?} ({} bit)", decoder.format(), depth_of(decoder.format())).to_lowercase(),
         };
         let bit_depth = depth_of(decoder.format());
+        let float = is_float(decoder.format());
         if info.width == 0 || info.height == 0 {
             return Err("video stream has no size".into());
         }
@@ -93,6 +106,7 @@ impl VideoReader {
             frames_decoded: 0,
             bit_depth,
             rate: (rate.numerator(), rate.denominator()),
+            float,
         })
     }
 
@@ -100,18 +114,29 @@ impl VideoReader {
         let (w, h) = (self.decoded.width(), self.decoded.height());
         let deep = self.bit_depth > 8;
         // Planar G, B, R straight from swscale: no interleaving to undo later.
-        let target = if deep { ff::format::Pixel::GBRP16LE } else { ff::format::Pixel::GBRP };
-        if self.scaler.is_none() {
-            let flags = ff::software::scaling::Flags::BILINEAR
-                | ff::software::scaling::Flags::ACCURATE_RND
-                | ff::software::scaling::Flags::FULL_CHR_H_INT;
-            let mut sc = ff::software::scaling::Context::get(self.decoded.format(), w, h, target, w, h, flags).map_err(fmt_err)?;
-            set_colorspace(&mut sc, &self.decoded);
-            self.scaler = Some(sc);
+        let target = if self.float {
+            ff::format::Pixel::GBRPF32LE
+        } else if deep {
+            ff::format::Pixel::GBRP16LE
+        } else {
+            ff::format::Pixel::GBRP
+        };
+        // Float planes already in G, B, R order are read as they are: swscale's float-to-float
+        // path flushes small values (below ~0.007) to zero.
+        let direct = self.float && matches!(self.decoded.format(), ff::format::Pixel::GBRPF32LE | ff::format::Pixel::GBRAPF32LE);
+        if !direct {
+            if self.scaler.is_none() {
+                let flags = ff::software::scaling::Flags::BILINEAR
+                    | ff::software::scaling::Flags::ACCURATE_RND
+                    | ff::software::scaling::Flags::FULL_CHR_H_INT;
+                let mut sc = ff::software::scaling::Context::get(self.decoded.format(), w, h, target, w, h, flags).map_err(fmt_err)?;
+                set_colorspace(&mut sc, &self.decoded);
+                self.scaler = Some(sc);
+            }
+            self.scaler.as_mut().expect("scaler set").run(&self.decoded, &mut self.rgb).map_err(fmt_err)?;
         }
-        self.scaler.as_mut().expect("scaler set").run(&self.decoded, &mut self.rgb).map_err(fmt_err)?;
         let (w, h) = (w as usize, h as usize);
-        let rgb = &self.rgb;
+        let rgb = if direct { &self.decoded } else { &self.rgb };
         // GBRP plane order is G (0), B (1), R (2).
         let plane = |i: usize, bytes_per: usize| -> Vec<u8> {
             let (stride, data) = (rgb.stride(i), rgb.data(i));
@@ -121,7 +146,10 @@ impl VideoReader {
             }
             v
         };
-        let data = if deep {
+        let data = if self.float {
+            let tof = |b: Vec<u8>| b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect::<Vec<f32>>();
+            FrameData::Planar([tof(plane(2, 4)), tof(plane(0, 4)), tof(plane(1, 4))])
+        } else if deep {
             let to16 = |b: Vec<u8>| b.chunks_exact(2).map(|c| u16::from_le_bytes([c[0], c[1]])).collect::<Vec<u16>>();
             FrameData::Planar16([to16(plane(2, 2)), to16(plane(0, 2)), to16(plane(1, 2))])
         } else {
@@ -217,8 +245,21 @@ fn is_full_range_yuv(p: ff::format::Pixel) -> bool {
     matches!(p, YUVJ420P | YUVJ422P | YUVJ444P)
 }
 
+/// What [`VideoWriter`] encodes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Codec {
+    /// libx264, CRF 18 (4:2:0, or 4:4:4 for odd sizes).
+    H264,
+    /// FFV1, lossless RGB (needs .mkv).
+    Ffv1,
+    /// One JPEG image (quality 2 of 31, 4:4:4).
+    Jpeg,
+    /// One TIFF image (8-bit RGB).
+    Tiff,
+}
+
 /// Video encoding: H.264 (libx264, CRF 18) by default, or FFV1 (lossless, RGB) for `.mkv`
-/// with `lossless`. Frames are interleaved 8-bit RGB.
+/// with `lossless`, or a single JPEG or TIFF image. Frames are interleaved 8-bit RGB.
 pub struct VideoWriter {
     octx: ff::format::context::Output,
     enc: ff::encoder::Video,
@@ -239,16 +280,29 @@ impl VideoWriter {
     /// No encoder, a container that does not fit, or the file cannot be created (message without
     /// the path; the caller names it).
     pub fn create(path: &Path, w: usize, h: usize, fps: (i32, i32), lossless: bool) -> Result<VideoWriter, String> {
+        VideoWriter::create_as(path, w, h, fps, if lossless { Codec::Ffv1 } else { Codec::H264 })
+    }
+
+    /// As [`VideoWriter::create`], with the codec named.
+    ///
+    /// # Errors
+    /// As [`VideoWriter::create`].
+    pub fn create_as(path: &Path, w: usize, h: usize, fps: (i32, i32), codec: Codec) -> Result<VideoWriter, String> {
         init();
-        let mut octx = ff::format::output(&path).map_err(|e| format!("cannot create ({})", fmt_err(e)))?;
+        let mut octx = match codec {
+            Codec::Jpeg | Codec::Tiff => ff::format::output_as(&path, "image2"),
+            _ => ff::format::output(&path),
+        }
+        .map_err(|e| format!("cannot create ({})", fmt_err(e)))?;
         let global = octx.format().flags().contains(ff::format::Flags::GLOBAL_HEADER);
-        let (id, pix) = if lossless {
-            (ff::codec::Id::FFV1, ff::format::Pixel::BGRZ)
-        } else if w % 2 == 0 && h % 2 == 0 {
-            (ff::codec::Id::H264, ff::format::Pixel::YUV420P)
-        } else {
-            (ff::codec::Id::H264, ff::format::Pixel::YUV444P)
+        let (id, pix) = match codec {
+            Codec::Ffv1 => (ff::codec::Id::FFV1, ff::format::Pixel::BGRZ),
+            Codec::H264 if w % 2 == 0 && h % 2 == 0 => (ff::codec::Id::H264, ff::format::Pixel::YUV420P),
+            Codec::H264 => (ff::codec::Id::H264, ff::format::Pixel::YUV444P),
+            Codec::Jpeg => (ff::codec::Id::MJPEG, ff::format::Pixel::YUVJ444P),
+            Codec::Tiff => (ff::codec::Id::TIFF, ff::format::Pixel::RGB24),
         };
+        let kind = codec;
         let codec = ff::encoder::find(id).ok_or_else(|| format!("no {id:?} encoder in this FFmpeg"))?;
         let mut enc = ff::codec::context::Context::new_with_codec(codec).encoder().video().map_err(fmt_err)?;
         let rate = ff::Rational::new(fps.0.max(1), fps.1.max(1));
@@ -262,9 +316,17 @@ impl VideoWriter {
             enc.set_flags(ff::codec::Flags::GLOBAL_HEADER);
         }
         let mut opts = ff::Dictionary::new();
-        if !lossless {
-            opts.set("crf", "18");
-            opts.set("preset", "medium");
+        match kind {
+            Codec::H264 => {
+                opts.set("crf", "18");
+                opts.set("preset", "medium");
+            }
+            Codec::Jpeg => {
+                // -q:v 2: global_quality is in lambda units (FF_QP2LAMBDA = 118).
+                opts.set("flags", "+qscale");
+                opts.set("global_quality", "236");
+            }
+            Codec::Ffv1 | Codec::Tiff => {}
         }
         let enc = enc.open_with(opts).map_err(|e| format!("cannot open the {id:?} encoder ({})", fmt_err(e)))?;
         let mut ost = octx.add_stream(codec).map_err(fmt_err)?;
@@ -339,4 +401,24 @@ impl VideoWriter {
         self.octx.write_trailer().map_err(fmt_err)?;
         Ok(self.next_pts as u64)
     }
+}
+
+/// Reads one image (any format FFmpeg decodes: JPEG, TIFF, OpenEXR, PNG, ...): its first frame.
+///
+/// # Errors
+/// Unreadable or empty (message without the path).
+pub fn read_image(path: &Path) -> Result<(Frame, bool), String> {
+    let mut r = VideoReader::open(path)?;
+    let f = r.next_frame()?.ok_or("no image in the file")?;
+    Ok((f, r.float))
+}
+
+/// Writes one 8-bit RGB image as JPEG or TIFF, chosen by `codec`.
+///
+/// # Errors
+/// No encoder or the file cannot be written (message without the path).
+pub fn write_image(path: &Path, w: usize, h: usize, rgb: &[u8], codec: Codec) -> Result<(), String> {
+    let mut wr = VideoWriter::create_as(path, w, h, (1, 1), codec)?;
+    wr.write_rgb8(rgb)?;
+    wr.finish().map(|_| ())
 }

@@ -82,6 +82,55 @@ fn bad_paths_are_refused_and_the_input_is_untouched() {
     assert!(!o.status.success() && stderr(&o).contains("out.mp4"), "{}", stderr(&o));
     let o = run(&["deblur", input.to_str().unwrap(), "-o", d.join("o.mp4").to_str().unwrap(), "--model", file.to_str().unwrap()]);
     assert!(!o.status.success() && stderr(&o).contains("a-file"), "{}", stderr(&o));
+    // A typo in the deblur file's keys, and a bad value, are named.
+    let o = run(&["deblur", input.to_str().unwrap(), "-o", d.join("o.mp4").to_str().unwrap(), "--set", "deblur.tyle=512"]);
+    assert!(!o.status.success() && stderr(&o).contains("tyle"), "{}", stderr(&o));
+    let o = run(&["deblur", input.to_str().unwrap(), "-o", d.join("o.mp4").to_str().unwrap(), "--set", "deblur.overlap=200"]);
+    assert!(!o.status.success() && stderr(&o).contains("deblur.overlap"), "{}", stderr(&o));
     assert!(std::fs::read(&input).unwrap() == before);
     assert!(!d.join("o.mp4").exists());
+}
+
+#[test]
+fn png_jpeg_tiff_and_exr_keep_names_and_formats_and_an_identity_model_keeps_the_pixels() {
+    let d = scratch("deblur_formats");
+    let (src, dst) = (d.join("in"), d.join("out"));
+    std::fs::create_dir_all(&src).unwrap();
+    // JPEG and TIFF by the ffmpeg CLI, PNG and EXR (linear light) by our writers, same picture.
+    for name in ["a.jpg", "b.tif", "c.png"] {
+        ffmpeg(&["-i", FIXTURE, "-frames:v", "1", "-vf", "crop=72:40:100:60", "-pix_fmt", "rgb24", src.join(name).to_str().unwrap()]);
+    }
+    let (w, h, rgb) = pipeline::io::png::read_rgb8(&std::fs::read(src.join("c.png")).unwrap()).unwrap();
+    let curve = pipeline::optics::transfer::Curve::Srgb;
+    let lin: [Vec<f32>; 3] = std::array::from_fn(|c| (0..w * h).map(|i| curve.to_linear(rgb[i * 3 + c] as f64 / 255.0) as f32).collect());
+    let mut exr = Vec::new();
+    pipeline::io::exr::write_rgb_f32(&mut exr, w, h, [&lin[0], &lin[1], &lin[2]]).unwrap();
+    std::fs::write(src.join("d.exr"), exr).unwrap();
+
+    let dev = Device::flex();
+    let identity = Net::new(Arch::Shallow { width: 8 }, &dev).zero_last_layer(&dev);
+    let r = pipeline::deblur::images(&identity, "identity", &src, &dst, Tiling { tile: 64, overlap: 16 }, false).unwrap();
+    assert_eq!(r.frames, 4);
+    assert_eq!(files(&dst), vec!["a.jpg", "b.tif", "c.png", "d.exr"]);
+    let magic = |n: &str| std::fs::read(dst.join(n)).unwrap()[..4].to_vec();
+    assert_eq!(magic("a.jpg")[..2], [0xFF, 0xD8]);
+    assert!(magic("b.tif") == b"II*\0" || magic("b.tif") == b"MM\0*");
+    assert_eq!(magic("c.png"), [0x89, b'P', b'N', b'G']);
+    assert_eq!(magic("d.exr"), [0x76, 0x2f, 0x31, 0x01]);
+    // Every output read back (through FFmpeg's decoders for JPEG, TIFF and EXR) against its input.
+    let read = |p: std::path::PathBuf| {
+        let (f, float) = pipeline::io::video::read_image(&p).unwrap();
+        assert_eq!((f.width, f.height), (w, h));
+        pipeline::deblur::to_rgb8(&f, float)
+    };
+    let worst = |a: &[u8], b: &[u8]| a.iter().zip(b).map(|(x, y)| (*x as i32 - *y as i32).abs()).max().unwrap();
+    for name in ["b.tif", "c.png", "d.exr"] {
+        let (i, o) = (read(src.join(name)), read(dst.join(name)));
+        assert!(worst(&i, &rgb) <= 1, "{name}: input read as {} levels off", worst(&i, &rgb));
+        assert!(worst(&o, &i) <= 1, "{name}: identity moved pixels by {} levels", worst(&o, &i));
+    }
+    // JPEG is lossy once more on the way out: small mean change only.
+    let (i, o) = (read(src.join("a.jpg")), read(dst.join("a.jpg")));
+    let mean = i.iter().zip(&o).map(|(x, y)| (*x as f64 - *y as f64).abs()).sum::<f64>() / i.len() as f64;
+    assert!(mean < 2.0, "jpeg re-encode changed pixels by {mean} levels on average");
 }
