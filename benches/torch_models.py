@@ -3,6 +3,7 @@ src/model/mod.rs, timed the same way (training step with Huber loss and Adam on 
 128x128 patches; forward of one patch in eval mode). Prints one JSON object.
 
 Usage: python3 benches/torch_models.py unet|shallow WIDTH BATCH REPEATS
+       python3 benches/torch_models.py infer unet|shallow WIDTH HEIGHT FRAME_WIDTH REPEATS
 Skipped by `pipeline bench train` when torch is not installed.
 """
 import json, statistics, sys, time
@@ -66,7 +67,27 @@ class Shallow(nn.Module):
         return x + self.out(y)
 
 
+def infer(kind, width, h, w, repeats):
+    """Whole-frame forward (eval mode, no grad) of an h x w frame: frames/s, median of repeats."""
+    torch.manual_seed(7)
+    model = (UNet(width) if kind == "unet" else Shallow(width)).eval()
+    # The U-Net needs sides divisible by 16, as src/model pads them.
+    ph, pw = -(-h // 16) * 16, -(-w // 16) * 16
+    x = torch.rand(1, 3, ph if kind == "unet" else h, pw if kind == "unet" else w)
+    times = []
+    with torch.no_grad():
+        for r in range(repeats + 1):
+            t = time.perf_counter()
+            model(x)
+            if r:
+                times.append(time.perf_counter() - t)
+    print(json.dumps({"threads": torch.get_num_threads(), "frames_per_s_median": 1.0 / statistics.median(times)}))
+
+
 def main():
+    if sys.argv[1] == "infer":
+        infer(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5]), int(sys.argv[6]))
+        return
     kind, width, batch, repeats = sys.argv[1], int(sys.argv[2]), int(sys.argv[3]), int(sys.argv[4])
     torch.manual_seed(7)
     model = UNet(width) if kind == "unet" else Shallow(width)

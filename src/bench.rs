@@ -273,7 +273,12 @@ pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize) -> crat
     use burn::nn::loss::{HuberLossConfig, Reduction};
     use burn::optim::{AdamConfig, GradientsParams};
     use burn::tensor::{Device, Tensor, TensorData};
-    let torch = std::process::Command::new("python3").args(["-c", "import torch"]).status().map(|s| s.success()).unwrap_or(false);
+    let torch = std::process::Command::new("python3")
+        .args(["-c", "import torch"])
+        .stderr(std::process::Stdio::null())
+        .status()
+        .map(|s| s.success())
+        .unwrap_or(false);
     let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/torch_models.py");
     let mut out = Vec::new();
     for &arch in archs {
@@ -340,6 +345,95 @@ pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize) -> crat
             }
         );
         out.push(row);
+    }
+    Ok(out)
+}
+
+/// One shipped model's speed in `bench deblur`.
+#[cfg(feature = "train")]
+#[derive(Debug, serde::Serialize)]
+pub struct DeblurSpeed {
+    pub model: String,
+    pub arch: String,
+    pub width: usize,
+    pub height: usize,
+    /// The whole frame in one forward pass.
+    pub whole_frames_per_s_median: f64,
+    /// As `pipeline deblur` runs by default: 256-pixel tiles overlapping by 32, blended.
+    pub tiled_frames_per_s_median: f64,
+    /// PyTorch CPU, the same architecture, whole frame, in the same run (when installed).
+    pub torch: Option<serde_json::Value>,
+    /// torch frames/s over ours (whole frame): how many times faster PyTorch is.
+    pub torch_over_ours: Option<f64>,
+}
+
+/// `bench deblur`: frames/s of each shipped model on a `width x height` frame, whole and tiled,
+/// beside PyTorch on the same architecture when torch is installed.
+#[cfg(feature = "train")]
+pub fn deblur(width: usize, height: usize, repeats: usize) -> crate::Result<Vec<DeblurSpeed>> {
+    use crate::deblur::{run_frame, Tiling};
+    use crate::model::Arch;
+    let torch = std::process::Command::new("python3")
+        .args(["-c", "import torch"])
+        .stderr(std::process::Stdio::null())
+        .status()
+        .map(|s| s.success())
+        .unwrap_or(false);
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let script = root.join("benches/torch_models.py");
+    let device = burn::tensor::Device::flex();
+    let frame: Vec<u8> = (0..width * height * 3).map(|i| (crate::rng::hash(&[i as u64 / 7]) % 256) as u8).collect();
+    let mut out = Vec::new();
+    for name in ["shallow32-coded", "unet16-coded", "unet16-conventional"] {
+        let path = root.join("models").join(name).join("model.safetensors");
+        let (net, arch) = crate::train::load_model(&path, &device)?;
+        let net = burn::module::Module::valid(&net);
+        let time = |tiling: Tiling| {
+            let mut t = Vec::new();
+            for r in 0..repeats + 1 {
+                let t0 = Instant::now();
+                std::hint::black_box(run_frame(&net, &frame, width, height, tiling, &device));
+                if r > 0 {
+                    t.push(t0.elapsed().as_secs_f64());
+                }
+            }
+            1.0 / median(&mut t)
+        };
+        let whole = time(Tiling { tile: width.max(height), overlap: 0 });
+        let tiled = time(Tiling { tile: 256, overlap: 32 });
+        let torch_row: Option<serde_json::Value> = if torch && script.exists() {
+            let (kind, w) = match arch {
+                Arch::Unet { base } => ("unet", base),
+                Arch::Shallow { width } => ("shallow", width),
+            };
+            std::process::Command::new("python3")
+                .arg(&script)
+                .args(["infer", kind, &w.to_string(), &height.to_string(), &width.to_string(), &repeats.to_string()])
+                .output()
+                .ok()
+                .and_then(|o| serde_json::from_slice(&o.stdout).ok())
+        } else {
+            None
+        };
+        let ratio = torch_row.as_ref().and_then(|t| t["frames_per_s_median"].as_f64()).map(|t| t / whole);
+        eprintln!(
+            "bench: {name} ({}) {width}x{height}: {whole:.3} frames/s whole, {tiled:.3} tiled 256/32{}",
+            arch.name(),
+            match ratio {
+                Some(r) => format!("; torch {r:.2}x ours"),
+                None => "; torch not installed, no comparison".into(),
+            }
+        );
+        out.push(DeblurSpeed {
+            model: format!("models/{name}"),
+            arch: arch.name(),
+            width,
+            height,
+            whole_frames_per_s_median: whole,
+            tiled_frames_per_s_median: tiled,
+            torch: torch_row,
+            torch_over_ours: ratio,
+        });
     }
     Ok(out)
 }

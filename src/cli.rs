@@ -136,6 +136,18 @@ pub enum Command {
 
 #[derive(Subcommand, Debug)]
 pub enum BenchCommand {
+    /// Deblurring speed (frames/s) of each shipped model on a 1280x720 frame, whole and in
+    /// tiles, beside PyTorch CPU on the same architecture when torch is installed.
+    #[cfg(feature = "train")]
+    Deblur {
+        #[arg(long, default_value_t = 1280)]
+        width: usize,
+        #[arg(long, default_value_t = 720)]
+        height: usize,
+        /// Repeats; the median is reported.
+        #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u16).range(1..=1000))]
+        repeats: u16,
+    },
     /// Time to build the kernels of one window, cold (new camera) and from the cache.
     Psf {
         #[arg(long, value_enum, default_value_t = CameraKind::PhaseCoded)]
@@ -589,6 +601,12 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
                 archs.push(Arch::Unet { base: 64 });
             }
             let r = crate::bench::train(&archs, batch, repeats as usize)?;
+            println!("{}", serde_json::to_string_pretty(&r)?);
+            Ok(())
+        }
+        #[cfg(feature = "train")]
+        Command::Bench(BenchCommand::Deblur { width, height, repeats }) => {
+            let r = crate::bench::deblur(width, height, repeats as usize)?;
             println!("{}", serde_json::to_string_pretty(&r)?);
             Ok(())
         }

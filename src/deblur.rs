@@ -95,36 +95,61 @@ fn ramp(i: usize, len: usize, start: usize, n: usize, o: usize) -> f32 {
     w.max(1e-3)
 }
 
-/// Runs `net` on one interleaved 8-bit RGB frame, whole or in blended tiles.
+/// Runs `net` on one interleaved 8-bit RGB frame, whole or in blended tiles. Tiles run on
+/// all cores (burn's CPU backend runs one forward pass on one core); they are blended in a
+/// fixed order, so the result does not depend on the number of threads.
 pub fn run_frame(net: &Net, rgb: &[u8], w: usize, h: usize, tiling: Tiling, device: &Device) -> Vec<u8> {
     let (t, o) = (tiling.tile.max(16), tiling.overlap.min(tiling.tile / 2));
-    let mut acc = vec![0.0f32; w * h * 3];
-    let mut wsum = vec![0.0f32; w * h];
-    for y0 in starts(h, t, o) {
-        for x0 in starts(w, t, o) {
-            let (tw, th) = (t.min(w), t.min(h));
-            let mut v = vec![0.0f32; 3 * tw * th];
-            for y in 0..th {
-                for x in 0..tw {
-                    for c in 0..3 {
-                        v[c * tw * th + y * tw + x] = rgb[((y0 + y) * w + x0 + x) * 3 + c] as f32 / 255.0;
-                    }
+    let (tw, th) = (t.min(w), t.min(h));
+    let tiles: Vec<(usize, usize)> =
+        starts(h, t, o).into_iter().flat_map(|y0| starts(w, t, o).into_iter().map(move |x0| (x0, y0))).collect();
+    let forward = |&(x0, y0): &(usize, usize)| -> Vec<f32> {
+        let mut v = vec![0.0f32; 3 * tw * th];
+        for y in 0..th {
+            for x in 0..tw {
+                for c in 0..3 {
+                    v[c * tw * th + y * tw + x] = rgb[((y0 + y) * w + x0 + x) * 3 + c] as f32 / 255.0;
                 }
             }
-            let out = net
-                .forward(Tensor::<4>::from_data(TensorData::new(v, [1, 3, th, tw]), device))
-                .into_data()
-                .try_to_vec::<f32>()
-                .expect("f32");
-            for y in 0..th {
-                let wy = ramp(y, th, y0, h, o);
-                for x in 0..tw {
-                    let wgt = wy * ramp(x, tw, x0, w, o);
-                    let p = (y0 + y) * w + x0 + x;
-                    wsum[p] += wgt;
-                    for c in 0..3 {
-                        acc[p * 3 + c] += wgt * out[c * tw * th + y * tw + x];
-                    }
+        }
+        net.forward(Tensor::<4>::from_data(TensorData::new(v, [1, 3, th, tw]), device)).into_data().try_to_vec::<f32>().expect("f32")
+    };
+    let workers = std::thread::available_parallelism().map_or(1, |n| n.get()).min(tiles.len());
+    let outs: Vec<Vec<f32>> = if workers <= 1 {
+        tiles.iter().map(forward).collect()
+    } else {
+        let next = std::sync::atomic::AtomicUsize::new(0);
+        let mut done: Vec<(usize, Vec<f32>)> = std::thread::scope(|s| {
+            let hs: Vec<_> = (0..workers)
+                .map(|_| {
+                    s.spawn(|| {
+                        let mut mine = Vec::new();
+                        loop {
+                            let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+                            if i >= tiles.len() {
+                                return mine;
+                            }
+                            mine.push((i, forward(&tiles[i])));
+                        }
+                    })
+                })
+                .collect();
+            hs.into_iter().flat_map(|h| h.join().expect("tile worker")).collect()
+        });
+        done.sort_by_key(|(i, _)| *i);
+        done.into_iter().map(|(_, v)| v).collect()
+    };
+    let mut acc = vec![0.0f32; w * h * 3];
+    let mut wsum = vec![0.0f32; w * h];
+    for (&(x0, y0), out) in tiles.iter().zip(&outs) {
+        for y in 0..th {
+            let wy = ramp(y, th, y0, h, o);
+            for x in 0..tw {
+                let wgt = wy * ramp(x, tw, x0, w, o);
+                let p = (y0 + y) * w + x0 + x;
+                wsum[p] += wgt;
+                for c in 0..3 {
+                    acc[p * 3 + c] += wgt * out[c * tw * th + y * tw + x];
                 }
             }
         }
