@@ -24,7 +24,9 @@ pub mod model;
 pub mod optics;
 pub mod plot;
 pub mod psfcmd;
+pub mod recon;
 pub mod rng;
+pub mod scene;
 pub mod stage;
 #[cfg(feature = "train")]
 pub mod train;

@@ -215,6 +215,35 @@ impl Camera {
         self.psfs.lock().unwrap().entry(psi.to_bits()).or_insert(p).clone()
     }
 
+    /// The image of a point that travels `travel` pixels (x, y) at constant speed over a window
+    /// of `n` sub-frames, centred where it is at mid-exposure: the camera's motion PSF for that
+    /// velocity, per channel, on a `(2 half + 1)^2` grid (unit sum inside the grid). Sub-frame k
+    /// is at time t_k in [-1, 1] ([`crate::scene::sub_time`]), the point at `travel / 2 * t_k`.
+    ///
+    /// # Errors
+    /// As [`Camera::window`].
+    pub fn moving_point(&self, n: usize, travel: [f64; 2], half: usize) -> Result<[Vec<f32>; 3], ConfigError> {
+        let win = self.window(n)?;
+        let side = 2 * half + 1;
+        let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0f32; side * side]);
+        for (k, kern) in win.iter().enumerate() {
+            let t = crate::scene::sub_time(k, n);
+            let moved = SubframeKernel { shift: [kern.shift[0] + travel[0] / 2.0 * t, kern.shift[1] + travel[1] / 2.0 * t], ..kern.clone() };
+            // Parts that fall outside the grid are dropped (the caller picks `half`).
+            let need = moved.half_extent();
+            for (c, o) in out.iter_mut().enumerate() {
+                let big = moved.render(c, need.max(half));
+                let (bn, off) = (2 * need.max(half) + 1, need.max(half) - half);
+                for y in 0..side {
+                    for x in 0..side {
+                        o[y * side + x] += big[(y + off) * bn + x + off];
+                    }
+                }
+            }
+        }
+        Ok(out)
+    }
+
     /// The N kernels of a window, computed once per N (PSFs in parallel on all cores), then
     /// served from the cache. All PSFs of a window share one trimmed size.
     ///
@@ -265,6 +294,61 @@ mod tests {
 
     fn cam(kind: CameraKind) -> Camera {
         Camera::new(&OpticsConfig::default(), &CameraConfig::new(kind))
+    }
+
+    /// Largest normalised cross-correlation of two square images over all shifts.
+    fn best_correlation(a: &[f32], b: &[f32]) -> f64 {
+        let n = (a.len() as f64).sqrt() as isize;
+        let norm = |v: &[f32]| v.iter().map(|x| (*x as f64).powi(2)).sum::<f64>().sqrt();
+        let mut best = 0.0f64;
+        for dy in -n + 1..n {
+            for dx in -n + 1..n {
+                let mut s = 0.0;
+                for y in 0.max(-dy)..n.min(n - dy) {
+                    for x in 0.max(-dx)..n.min(n - dx) {
+                        s += a[(y * n + x) as usize] as f64 * b[((y + dy) * n + x + dx) as usize] as f64;
+                    }
+                }
+                best = best.max(s);
+            }
+        }
+        best / (norm(a) * norm(b))
+    }
+
+    #[test]
+    fn parabolic_blur_is_nearly_the_same_along_its_axis_and_not_across() {
+        // a = 8 px: the sensor's speed covers objects travelling up to 4a = 32 px per exposure.
+        let c = cam(CameraKind::Parabolic);
+        let k = |travel: [f64; 2]| c.moving_point(52, travel, 24).unwrap()[1].clone();
+        let still = k([0.0, 0.0]);
+        for t in [8.0, -8.0, 16.0, -16.0] {
+            let r = best_correlation(&still, &k([t, 0.0]));
+            assert!(r > 0.85, "travel {t} px along x: correlation {r}");
+        }
+        for t in [8.0, 16.0] {
+            let r = best_correlation(&still, &k([0.0, t]));
+            assert!(r < 0.6, "travel {t} px along y: correlation {r}");
+        }
+        // A conventional camera's blur changes with speed along x too: that is what the sensor
+        // motion buys.
+        let conv = cam(CameraKind::Conventional);
+        let kc = |t: f64| conv.moving_point(52, [t, 0.0], 24).unwrap()[1].clone();
+        assert!(best_correlation(&kc(0.0), &kc(16.0)) < 0.4);
+    }
+
+    #[test]
+    fn a_moving_point_keeps_its_energy_and_travels() {
+        let c = cam(CameraKind::PhaseCoded);
+        let p = c.moving_point(9, [12.0, 0.0], 30).unwrap();
+        for ch in &p {
+            let s: f32 = ch.iter().sum();
+            assert!((s - 1.0).abs() < 0.02, "energy {s}");
+        }
+        // The point moves to the right while psi sweeps 0 -> 8: blue is sharpest early (left),
+        // green in the middle, red late (right), so the channels peak left to right.
+        let peak_col = |v: &[f32]| v.iter().enumerate().max_by(|a, b| a.1.total_cmp(b.1)).unwrap().0 % 61;
+        let (r, g, b) = (peak_col(&p[0]), peak_col(&p[1]), peak_col(&p[2]));
+        assert!(b <= g && g <= r && b + 3 <= r, "peak columns: blue {b}, green {g}, red {r}");
     }
 
     #[test]
