@@ -83,6 +83,42 @@ impl Default for StillsConfig {
 pub enum SourceConfig {
     Decode(DecodeConfig),
     Stills(StillsConfig),
+    Scene(SceneSourceConfig),
+}
+
+/// `type = "scene"`: the synthetic moving scenes of the paper's comparison figures (moving
+/// dots, rotating spoke target), `clips` exposures of `frames` sub-frames each.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct SceneSourceConfig {
+    pub scene: crate::scene::SceneKind,
+    /// [width, height]
+    pub size: [usize; 2],
+    /// Sub-frames per clip (one exposure).
+    pub frames: usize,
+    /// Travel over the clip of the fastest dot or the spoke target's rim, pixels.
+    pub travel_px: f64,
+    pub dots_per_arm: usize,
+    pub spokes: usize,
+    pub clips: usize,
+    /// Nominal frame rate written to the report.
+    pub fps: f64,
+}
+
+impl Default for SceneSourceConfig {
+    fn default() -> Self {
+        let p = crate::scene::SceneParams::default();
+        SceneSourceConfig {
+            scene: p.kind,
+            size: [p.width, p.height],
+            frames: p.frames,
+            travel_px: p.travel_px,
+            dots_per_arm: p.dots_per_arm,
+            spokes: p.spokes,
+            clips: 1,
+            fps: 240.0,
+        }
+    }
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -505,6 +541,17 @@ fn check_source(name: &str, s: &SourceConfig) -> Vec<ConfigError> {
     let mut c = Checker::new(&prefix);
     match s {
         SourceConfig::Decode(_) => {}
+        SourceConfig::Scene(sc) => {
+            c.range_usize("frames", sc.frames, 1, 100_000);
+            c.range_usize("clips", sc.clips, 1, 100_000);
+            c.range("travel_px", sc.travel_px, 0.0, 1000.0);
+            c.range_usize("spokes", sc.spokes, 1, 1000);
+            c.range_usize("dots_per_arm", sc.dots_per_arm, 1, 1000);
+            c.range("fps", sc.fps, 1.0, 100_000.0);
+            for (i, v) in sc.size.iter().enumerate() {
+                c.range_usize(&format!("size[{i}]"), *v, 16, 8192);
+            }
+        }
         SourceConfig::Stills(st) => {
             c.range_usize("frames", st.frames as usize, 1, 1_000_000);
             c.range("fps", st.fps, 1.0, 100_000.0);

@@ -116,6 +116,7 @@ pub fn list_inputs(plan: &Plan) -> Result<Vec<(Arc<Input>, Option<PathBuf>)>> {
     let paths: Vec<Option<PathBuf>> = match plan.source() {
         SourceConfig::Decode(d) => crate::config::expand_paths(&d.paths, VIDEO_EXTS)?.into_iter().map(Some).collect(),
         SourceConfig::Stills(s) if s.paths.is_empty() => (0..s.clips).map(|_| None).collect(),
+        SourceConfig::Scene(s) => (0..s.clips).map(|_| None).collect(),
         SourceConfig::Stills(s) => crate::config::expand_paths(&s.paths, &["png"])?.into_iter().map(Some).collect(),
     };
     Ok(paths
@@ -276,6 +277,14 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
                     let _ = d;
                     return Err(Error::Invalid(format!("sources.{name}: built without the ffmpeg feature")));
                 }
+            }
+            StagePlan::Source(SourceConfig::Scene(s)) => {
+                source = Some(Box::new(crate::stage::source::Scene {
+                    cfg: s.clone(),
+                    inputs: selected.iter().map(|(i, _)| i.clone()).collect(),
+                    needs,
+                    counters: counters.clone(),
+                }));
             }
             StagePlan::Source(SourceConfig::Stills(s)) => {
                 source =

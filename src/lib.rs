@@ -15,6 +15,8 @@ pub mod deblur;
 pub mod error;
 #[cfg(all(feature = "train", feature = "ffmpeg"))]
 pub mod eval;
+#[cfg(feature = "train")]
+pub mod figure;
 pub mod frame;
 pub mod graph;
 pub mod io;

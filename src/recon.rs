@@ -11,26 +11,36 @@ use num_complex::Complex32;
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Ends {
     /// The observation is as long as the row; sources beyond the ends repeat the end pixels
-    /// (an image row: square A, regularise it).
+    /// (square A; ill-conditioned near the ends).
     Clamp,
     /// The whole smear is observed: `n + 2 pad` values for `n` sources (Raskar's 1-D model;
     /// A has full column rank for any code that is not all zero).
     Full,
+    /// The observation is as long as the row and the unknowns extend `pad` past each end (an
+    /// image row whose scene goes on beyond the frame): underdetermined, so it needs lambda > 0;
+    /// the solution returned by `solve_planes` is the middle `n`. Far better conditioned than
+    /// [`Ends::Clamp`], whose merged end pixels make the square system nearly singular.
+    Extend,
 }
 
 /// The smear of a row of `n` pixels by motion along it: sub-frame k (weight `weights[k]`, time
 /// t_k in [-1, 1]) sees the row moved by `travel_px / 2 * t_k` pixels (linear interpolation), so
-/// `b = A s`. Returns the number of observed values and A (row-major, that many rows, n columns).
-pub fn smear_matrix(n: usize, weights: &[f64], travel_px: f64, ends: Ends) -> (usize, Vec<f64>) {
+/// `b = A s`. Returns the number of observed values, of unknowns, and A (row-major).
+pub fn smear_matrix(n: usize, weights: &[f64], travel_px: f64, ends: Ends) -> (usize, usize, Vec<f64>) {
     let m = weights.len();
-    let pad = if ends == Ends::Full { (travel_px.abs() / 2.0).ceil() as usize + 1 } else { 0 };
-    let rows = n + 2 * pad;
-    let mut a = vec![0.0; rows * n];
+    let pad = (travel_px.abs() / 2.0).ceil() as usize + 1;
+    let (rows, cols, row_off, col_off) = match ends {
+        Ends::Clamp => (n, n, 0, 0),
+        Ends::Full => (n + 2 * pad, n, pad, 0),
+        Ends::Extend => (n, n + 2 * pad, 0, pad),
+    };
+    let mut a = vec![0.0; rows * cols];
     for (k, &wk) in weights.iter().enumerate() {
         let d = travel_px / 2.0 * sub_time(k, m);
         for i in 0..rows {
-            // Observed pixel i sees the source that sat at i - pad - d at mid-exposure.
-            let src = i as f64 - pad as f64 - d;
+            // Observed pixel i sees the source that sat at i - d at mid-exposure (in row
+            // coordinates; unknown j is row position j - col_off).
+            let src = i as f64 - row_off as f64 - d + col_off as f64;
             let j0 = src.floor();
             let f = src - j0;
             for (j, wgt) in [(j0 as isize, 1.0 - f), (j0 as isize + 1, f)] {
@@ -39,21 +49,25 @@ pub fn smear_matrix(n: usize, weights: &[f64], travel_px: f64, ends: Ends) -> (u
                 }
                 let j = match ends {
                     Ends::Clamp => j.clamp(0, n as isize - 1),
-                    Ends::Full if j < 0 || j >= n as isize => continue,
-                    Ends::Full => j,
+                    _ if j < 0 || j >= cols as isize => continue,
+                    _ => j,
                 };
-                a[i * n + j as usize] += wk * wgt;
+                a[i * cols + j as usize] += wk * wgt;
             }
         }
     }
-    (rows, a)
+    (rows, cols, a)
 }
 
 /// Least squares along rows for a known smear: `(A^T A + lambda I) s = A^T b`, with the
 /// Cholesky factor computed once and reused for every row.
 pub struct FlutterSolver {
+    /// Unknowns.
     n: usize,
     rows: usize,
+    /// Row length and where it starts among the unknowns.
+    row_len: usize,
+    offset: usize,
     a: Vec<f64>,
     /// Lower-triangular Cholesky factor of A^T A + lambda I, row-major.
     l: Vec<f64>,
@@ -65,7 +79,9 @@ impl FlutterSolver {
     /// # Panics
     /// If A^T A + lambda I is not positive definite (a singular smear and lambda 0).
     pub fn new(n: usize, weights: &[f64], travel_px: f64, ends: Ends, lambda: f64) -> FlutterSolver {
-        let (rows, a) = smear_matrix(n, weights, travel_px, ends);
+        let row_len = n;
+        let (rows, n, a) = smear_matrix(row_len, weights, travel_px, ends);
+        let offset = (n - row_len) / 2;
         let mut g = vec![0.0; n * n];
         for i in 0..n {
             for j in 0..=i {
@@ -87,7 +103,7 @@ impl FlutterSolver {
                 }
             }
         }
-        FlutterSolver { n, rows, a, l }
+        FlutterSolver { n, rows, row_len, offset, a, l }
     }
 
     /// `A s` (`rows` values).
@@ -110,14 +126,16 @@ impl FlutterSolver {
         x
     }
 
-    /// Every row of every plane, for a solver built with [`Ends::Clamp`] on rows of `n`.
+    /// Every row of every plane (rows as long as the observation: [`Ends::Clamp`] or
+    /// [`Ends::Extend`]); returns the rows' own pixels.
     pub fn solve_planes(&self, planes: &[Vec<f32>; 3], h: usize) -> [Vec<f32>; 3] {
-        assert_eq!(self.rows, self.n, "solve_planes needs a square (Clamp) smear");
+        let w = self.row_len;
+        assert_eq!(self.rows, w, "solve_planes needs an observation as long as the row");
         std::array::from_fn(|c| {
             (0..h)
                 .flat_map(|y| {
-                    let row: Vec<f64> = planes[c][y * self.n..(y + 1) * self.n].iter().map(|&v| v as f64).collect();
-                    self.solve(&row).into_iter().map(|v| v as f32)
+                    let row: Vec<f64> = planes[c][y * w..(y + 1) * w].iter().map(|&v| v as f64).collect();
+                    self.solve(&row)[self.offset..self.offset + w].iter().map(|&v| v as f32).collect::<Vec<f32>>()
                 })
                 .collect()
         })
@@ -174,8 +192,8 @@ mod tests {
     #[test]
     fn a_point_is_smeared_into_the_code() {
         // Two pixels per chop: sub-frame k moves the row by 2k - 51 pixels.
-        let (rows, a) = smear_matrix(160, &code_weights(), 104.0, Ends::Clamp);
-        assert_eq!(rows, 160);
+        let (rows, cols, a) = smear_matrix(160, &code_weights(), 104.0, Ends::Clamp);
+        assert_eq!((rows, cols), (160, 160));
         let mut s = vec![0.0; 160];
         s[80] = 1.0;
         let b: Vec<f64> = (0..160).map(|i| (0..160).map(|j| a[i * 160 + j] * s[j]).sum()).collect();

@@ -103,7 +103,9 @@ impl SceneParams {
                     let (x, y) = (d.pos[0] + d.vel[0] * t - 0.5, d.pos[1] + d.vel[1] * t - 0.5);
                     let (fx, fy) = (x.floor(), y.floor());
                     let (ax, ay) = ((x - fx) as f32, (y - fy) as f32);
-                    for (dx, dy, wgt) in [(0, 0, (1.0 - ax) * (1.0 - ay)), (1, 0, ax * (1.0 - ay)), (0, 1, (1.0 - ax) * ay), (1, 1, ax * ay)] {
+                    for (dx, dy, wgt) in
+                        [(0, 0, (1.0 - ax) * (1.0 - ay)), (1, 0, ax * (1.0 - ay)), (0, 1, (1.0 - ax) * ay), (1, 1, ax * ay)]
+                    {
                         let (px, py) = (fx as isize + dx, fy as isize + dy);
                         if px >= 0 && py >= 0 && (px as usize) < w && (py as usize) < h {
                             p[py as usize * w + px as usize] += wgt;
@@ -151,7 +153,8 @@ mod tests {
 
     #[test]
     fn dots_land_on_the_expected_pixels() {
-        let s = SceneParams { kind: SceneKind::Dots, width: 64, height: 48, frames: 9, travel_px: 8.0, dots_per_arm: 2, ..Default::default() };
+        let s =
+            SceneParams { kind: SceneKind::Dots, width: 64, height: 48, frames: 9, travel_px: 8.0, dots_per_arm: 2, ..Default::default() };
         let dots = s.dots();
         assert_eq!(dots.len(), 9);
         assert_eq!(dots[0].vel, [0.0, 0.0]);

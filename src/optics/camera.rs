@@ -228,7 +228,8 @@ impl Camera {
         let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0f32; side * side]);
         for (k, kern) in win.iter().enumerate() {
             let t = crate::scene::sub_time(k, n);
-            let moved = SubframeKernel { shift: [kern.shift[0] + travel[0] / 2.0 * t, kern.shift[1] + travel[1] / 2.0 * t], ..kern.clone() };
+            let moved =
+                SubframeKernel { shift: [kern.shift[0] + travel[0] / 2.0 * t, kern.shift[1] + travel[1] / 2.0 * t], ..kern.clone() };
             // Parts that fall outside the grid are dropped (the caller picks `half`).
             let need = moved.half_extent();
             for (c, o) in out.iter_mut().enumerate() {

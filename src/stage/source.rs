@@ -268,34 +268,79 @@ impl Source for Stills {
                 }
             };
             let frames = self.render(input, &image);
-            let info = InputInfo {
-                width: frames.first().map_or(0, |f| f.width),
-                height: frames.first().map_or(0, |f| f.height),
-                fps: self.cfg.fps,
-                frames_announced: Some(frames.len() as u64),
-                codec: "stills".into(),
-                pixel_format: "rgbf32".into(),
-            };
-            if let Err(e) = check_size(&info, &self.needs) {
-                if !out.send(Item::End(input.clone(), Err(format!("{}: {e}", input.path)))) {
-                    return Ok(());
-                }
-                continue;
-            }
-            self.counters.input(&input.path, &info, frames.len() as u64);
-            if !out.send(Item::Begin(input.clone(), info)) {
+            if !emit_clip(out, input, frames, self.cfg.fps, "stills", &self.needs, &self.counters) {
                 return Ok(());
             }
-            for (i, f) in frames.into_iter().enumerate() {
-                if out.stop.load(Ordering::Relaxed) {
-                    return Ok(());
-                }
-                Counters::add(&self.counters.frames, 1);
-                if !out.send(Item::Frame(input.clone(), i as u64, Arc::new(f))) {
-                    return Ok(());
-                }
-            }
-            if !out.send(Item::End(input.clone(), Ok(()))) {
+        }
+        Ok(())
+    }
+}
+
+/// Sends one rendered clip downstream (Begin, its frames, End); false when the graph stops.
+fn emit_clip(out: &mut Emit, input: &Arc<Input>, frames: Vec<Frame>, fps: f64, codec: &str, needs: &Needs, counters: &Counters) -> bool {
+    let info = InputInfo {
+        width: frames.first().map_or(0, |f| f.width),
+        height: frames.first().map_or(0, |f| f.height),
+        fps,
+        frames_announced: Some(frames.len() as u64),
+        codec: codec.into(),
+        pixel_format: "rgbf32".into(),
+    };
+    if let Err(e) = check_size(&info, needs) {
+        return out.send(Item::End(input.clone(), Err(format!("{}: {e}", input.path))));
+    }
+    counters.input(&input.path, &info, frames.len() as u64);
+    if !out.send(Item::Begin(input.clone(), info)) {
+        return false;
+    }
+    for (i, f) in frames.into_iter().enumerate() {
+        if out.stop.load(Ordering::Relaxed) {
+            return false;
+        }
+        Counters::add(&counters.frames, 1);
+        if !out.send(Item::Frame(input.clone(), i as u64, Arc::new(f))) {
+            return false;
+        }
+    }
+    out.send(Item::End(input.clone(), Ok(())))
+}
+
+/// `type = "scene"`: synthetic moving scenes ([`crate::scene`]), one exposure of `frames`
+/// sub-frames per clip, as encoded sRGB frames (a `linearize` with curve srgb gives back the
+/// rendered linear light).
+pub struct Scene {
+    pub cfg: crate::config::SceneSourceConfig,
+    pub inputs: Vec<Arc<Input>>,
+    pub needs: Needs,
+    pub counters: Arc<Counters>,
+}
+
+impl Source for Scene {
+    fn run(&mut self, out: &mut Emit) -> crate::Result<()> {
+        let c = &self.cfg;
+        let params = crate::scene::SceneParams {
+            kind: c.scene,
+            width: c.size[0],
+            height: c.size[1],
+            frames: c.frames,
+            travel_px: c.travel_px,
+            dots_per_arm: c.dots_per_arm,
+            spokes: c.spokes,
+        };
+        let enc = crate::optics::transfer::Encoder::new(crate::optics::transfer::Curve::Srgb);
+        for input in &self.inputs {
+            let frames: Vec<Frame> = params
+                .render()
+                .into_iter()
+                .map(|p| {
+                    Frame::new(
+                        params.width,
+                        params.height,
+                        FrameData::Planar(p.map(|v| v.into_iter().map(|x| enc.encode(x.min(1.0))).collect())),
+                    )
+                })
+                .collect();
+            if !emit_clip(out, input, frames, c.fps, "scene", &self.needs, &self.counters) {
                 return Ok(());
             }
         }

@@ -6,6 +6,8 @@ mod common;
 mod deblur;
 #[cfg(feature = "train")]
 mod eval;
+#[cfg(feature = "train")]
+mod figure;
 mod generate;
 mod psf_cli;
 #[cfg(feature = "train")]
