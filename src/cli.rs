@@ -18,7 +18,7 @@ moving point change colour along its path (blue, then green, then red), so a net
 direction and extent of motion and undo it. `pipeline` models that camera and the cameras it is \
 compared with, makes coded-blur training data from high-frame-rate video, and trains the paper's \
 networks on it.",
-    after_help = "Examples:\n  pipeline psf --camera phase_coded --psi 0:8:33 --out psfs.npy     the coded camera's PSFs\n  pipeline generate clip.mp4 -o out/                                training pairs as WebDataset shards\n  pipeline run pipelines/stills.toml -o out/stills                  the same from still images\n  pipeline train --config pipelines/train.toml                      train the U-Net on them\n  pipeline validate pipelines/*.toml                                check configs\n\nEvery command has --help with its own examples."
+    after_help = "Examples:\n  pipeline psf --camera phase_coded --psi 0:8:33 --out psfs.npy     the coded camera's PSFs\n  pipeline generate clip.mp4 -o out/                                training pairs as WebDataset shards\n  pipeline run pipelines/stills.toml -o out/stills                  the same from still images\n  pipeline train --config pipelines/train.toml                      train the U-Net on them\n  pipeline deblur coded.mp4 -o sharp.mp4                            deblur a video or an image folder\n  pipeline eval clip.mp4 -o eval-out/                               the paper's Table 1 on your footage\n  pipeline figure spoke -o fig5.png                                 the comparison figures\n  pipeline validate pipelines/*.toml                                check configs\n\nEvery command has --help with its own examples."
 )]
 pub struct Cli {
     #[command(subcommand)]

@@ -6,6 +6,9 @@
 //! - [`optics`]: the pupil, PSFs on the pixel grid, and the five cameras (pure math).
 //! - [`io`]: atomic writes, `.npy`, OpenEXR, PNG.
 //! - [`psfcmd`]: `pipeline psf`, which computes PSFs and writes them for people and tools.
+//! - [`scene`], [`recon`], `figure`: synthetic scenes, the classical reconstructions of the other
+//!   cameras, and the paper's comparison figures.
+//! - `deblur`, `eval` (feature `train`): running and scoring the networks.
 
 pub mod bench;
 pub mod cli;
