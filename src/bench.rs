@@ -273,13 +273,7 @@ pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize) -> crat
     use burn::nn::loss::{HuberLossConfig, Reduction};
     use burn::optim::{AdamConfig, GradientsParams};
     use burn::tensor::{Device, Tensor, TensorData};
-    let torch = std::process::Command::new("python3")
-        .args(["-c", "import torch"])
-        .stderr(std::process::Stdio::null())
-        .status()
-        .map(|s| s.success())
-        .unwrap_or(false);
-    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/torch_models.py");
+    let script = torch_script();
     let mut out = Vec::new();
     for &arch in archs {
         let device = Device::flex().autodiff();
@@ -312,7 +306,7 @@ pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize) -> crat
             }
         }
         let step = median(&mut steps);
-        let torch_row = if torch && script.exists() {
+        let torch_row = if let Some(script) = &script {
             let (kind, width) = match arch {
                 crate::model::Arch::Unet { base } => ("unet", base),
                 crate::model::Arch::Shallow { width } => ("shallow", width),
@@ -349,6 +343,18 @@ pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize) -> crat
     Ok(out)
 }
 
+/// `benches/torch_models.py` when python3 can import torch (the PyTorch baseline), else `None`.
+#[cfg(feature = "train")]
+fn torch_script() -> Option<std::path::PathBuf> {
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/torch_models.py");
+    let torch = std::process::Command::new("python3")
+        .args(["-c", "import torch"])
+        .stderr(std::process::Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    (torch && script.exists()).then_some(script)
+}
+
 /// One shipped model's speed in `bench deblur`.
 #[cfg(feature = "train")]
 #[derive(Debug, serde::Serialize)]
@@ -373,14 +379,8 @@ pub struct DeblurSpeed {
 pub fn deblur(width: usize, height: usize, repeats: usize) -> crate::Result<Vec<DeblurSpeed>> {
     use crate::deblur::{run_frame, Tiling};
     use crate::model::Arch;
-    let torch = std::process::Command::new("python3")
-        .args(["-c", "import torch"])
-        .stderr(std::process::Stdio::null())
-        .status()
-        .map(|s| s.success())
-        .unwrap_or(false);
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
-    let script = root.join("benches/torch_models.py");
+    let script = torch_script();
     let device = burn::tensor::Device::flex();
     let frame: Vec<u8> = (0..width * height * 3).map(|i| (crate::rng::hash(&[i as u64 / 7]) % 256) as u8).collect();
     let mut out = Vec::new();
@@ -401,7 +401,7 @@ pub fn deblur(width: usize, height: usize, repeats: usize) -> crate::Result<Vec<
         };
         let whole = time(Tiling { tile: width.max(height), overlap: 0 });
         let tiled = time(Tiling { tile: 256, overlap: 32 });
-        let torch_row: Option<serde_json::Value> = if torch && script.exists() {
+        let torch_row: Option<serde_json::Value> = if let Some(script) = &script {
             let (kind, w) = match arch {
                 Arch::Unet { base } => ("unet", base),
                 Arch::Shallow { width } => ("shallow", width),

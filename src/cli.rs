@@ -488,6 +488,19 @@ fn describe(table: toml::Table, origin: &str) -> crate::Result<String> {
     Ok(plan.stages.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>().join(" -> "))
 }
 
+/// The file given with `--config`, or the embedded default named `name`, with `--set` applied;
+/// and the name to put in error messages.
+#[cfg(feature = "train")]
+fn load_or_embedded(config: Option<&std::path::Path>, embedded: &str, name: &str, sets: &[String]) -> crate::Result<(toml::Table, String)> {
+    match config {
+        Some(p) => Ok((crate::config::load(p, sets)?, p.display().to_string())),
+        None => {
+            let origin = format!("{name} (embedded)");
+            Ok((crate::config::parse(embedded, &origin, sets)?, origin))
+        }
+    }
+}
+
 /// Runs a parsed command line.
 ///
 /// # Errors
@@ -544,11 +557,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             if same {
                 bail!("{}: the output is the input; choose another output path", out.display());
             }
-            let table = match &config {
-                Some(p) => crate::config::load(p, &sets)?,
-                None => crate::config::parse(crate::deblur::DEBLUR_TOML, "pipelines/deblur.toml (embedded)", &sets)?,
-            };
-            let origin = config.as_ref().map_or("pipelines/deblur.toml (embedded)".into(), |p| p.display().to_string());
+            let (table, origin) = load_or_embedded(config.as_deref(), crate::deblur::DEBLUR_TOML, "pipelines/deblur.toml", &sets)?;
             let mut d = crate::deblur::DeblurFile::from_table(table, &origin)?.deblur;
             d.tile = tile.unwrap_or(d.tile);
             d.overlap = overlap.unwrap_or(d.overlap);
@@ -579,11 +588,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         }
         #[cfg(all(feature = "train", feature = "ffmpeg"))]
         Command::Eval { videos, out, model, camera, config, sets, progress } => {
-            let table = match &config {
-                Some(p) => crate::config::load(p, &sets)?,
-                None => crate::config::parse(crate::eval::EVAL_TOML, "pipelines/eval.toml (embedded)", &sets)?,
-            };
-            let origin = config.as_ref().map_or("pipelines/eval.toml (embedded)".into(), |p| p.display().to_string());
+            let (table, origin) = load_or_embedded(config.as_deref(), crate::eval::EVAL_TOML, "pipelines/eval.toml", &sets)?;
             let mut f = crate::eval::EvalFile::from_table(table, &origin)?;
             if let Some(k) = camera {
                 f.camera.kind = k;
