@@ -205,14 +205,15 @@ fn dots(o: &FigureOptions, out: &Path) -> Result<Vec<Score>> {
     // Long traces (3.25 x travel: 52 px, one per flutter chop, at the default) so that the
     // shutter's code and the colour changes can be seen along them.
     let travel = 3.25 * o.travel_px;
-    let size = o.size.max((2.5 * travel) as usize);
+    // Two dots per arm on a canvas of 5 x travel, so that no two paths overlap.
+    let size = o.size.max((5.0 * travel) as usize);
     let s = SceneParams {
         kind: SceneKind::Dots,
         width: size,
         height: size,
         frames: o.frames,
         travel_px: travel,
-        dots_per_arm: 3,
+        dots_per_arm: 2,
         ..Default::default()
     };
     // Dots bright enough that their smeared traces sit well above the noise (clipped when still).
@@ -220,8 +221,21 @@ fn dots(o: &FigureOptions, out: &Path) -> Result<Vec<Score>> {
     let frames: Vec<[Vec<f32>; 3]> = s.render().into_iter().map(|p| p.map(|c| c.into_iter().map(|v| v * gain).collect())).collect();
     let (w, h) = (s.width, s.height);
     let show = |p: &[Vec<f32>; 3]| -> Vec<u8> { dilate(&encode(p, w, h), w, h) };
+    // Panel (a) with each dot's path to its last position drawn in orange, as the paper's arrows.
+    let mut first = show(&frames[0]);
+    for d in s.dots() {
+        let (a, b) = ([d.pos[0] - d.vel[0], d.pos[1] - d.vel[1]], [d.pos[0] + d.vel[0], d.pos[1] + d.vel[1]]);
+        let steps = ((b[0] - a[0]).abs() + (b[1] - a[1]).abs()).ceil() as usize;
+        for i in 2..steps {
+            let f = i as f64 / steps as f64;
+            let (x, y) = ((a[0] + (b[0] - a[0]) * f - 0.5).round() as usize, (a[1] + (b[1] - a[1]) * f - 0.5).round() as usize);
+            if x < w && y < h && first[(y * w + x) * 3] < 128 {
+                first[(y * w + x) * 3..(y * w + x) * 3 + 3].copy_from_slice(&[230, 140, 0]);
+            }
+        }
+    }
     let mut panels = vec![
-        Panel::from_rgb8("(A) FIRST SUB-FRAME", w, h, &show(&frames[0])),
+        Panel::from_rgb8("(A) FIRST SUB-FRAME, PATHS", w, h, &first),
         Panel::from_rgb8("(B) LAST SUB-FRAME", w, h, &show(&frames[frames.len() - 1])),
     ];
     for (i, kind) in [CameraKind::Conventional, CameraKind::Flutter, CameraKind::Parabolic, CameraKind::PhaseCoded].into_iter().enumerate()
@@ -318,7 +332,19 @@ fn spectrum(o: &FigureOptions, out: &Path) -> Result<Vec<Score>> {
     let travel = 2.0 * o.travel_px;
     let mut panels = Vec::new();
     for kind in [CameraKind::Conventional, CameraKind::Flutter, CameraKind::Parabolic, CameraKind::PhaseCoded] {
-        let xt = xt_slice(&camera(kind, o.travel_px), n, travel, x_len)?;
+        let small = xt_slice(&camera(kind, o.travel_px), n, travel, x_len)?;
+        // Zero-padded to twice the size in x and t: the spectrum is sampled twice as finely, so
+        // the continuous transform (a sinc along the exposure's box) shows instead of the DFT's
+        // sampling pattern of it.
+        let (x_len, n) = (2 * x_len, 2 * n);
+        let xt: [Vec<f64>; 3] = std::array::from_fn(|c| {
+            let mut v = vec![0.0; x_len * n];
+            for t in 0..n / 2 {
+                v[(t + n / 4) * x_len + x_len / 4..(t + n / 4) * x_len + x_len / 4 + x_len / 2]
+                    .copy_from_slice(&small[c][t * x_len / 2..(t + 1) * x_len / 2]);
+            }
+            v
+        });
         let specs: Vec<Vec<Complex64>> = xt.iter().map(|p| fft2_centred(p, x_len, n)).collect();
         let xt32: [Vec<f32>; 3] = std::array::from_fn(|c| xt[c].iter().map(|&v| v as f32).collect());
         panels.push(Panel::from_linear_normalised(format!("{} (X,T)", label(kind)), x_len, n, &xt32));
@@ -339,8 +365,8 @@ fn spectrum(o: &FigureOptions, out: &Path) -> Result<Vec<Score>> {
         });
         panels.push(Panel { label: "FT PHASE, AMP OVER 1%".into(), w: x_len, h: n, px: phase });
     }
-    let title = format!("(X,T) SLICE OF A POINT MOVING {travel} PX; 2-D FT PER COLOUR (R,G,B = CHANNELS)");
-    compose(out, &title, &panels, 3, 2)?;
+    let title = format!("(X,T) SLICE OF A POINT MOVING {travel} PX (ZERO-PADDED 2X); 2-D FT PER COLOUR (R,G,B = CHANNELS)");
+    compose(out, &title, &panels, 3, 1)?;
     Ok(Vec::new())
 }
 
