@@ -72,7 +72,7 @@ pub enum Command {
         /// A model written by `pipeline train`; default: the shipped shallow model (coded camera).
         #[arg(long)]
         model: Option<PathBuf>,
-        /// Tile size in pixels (frames are processed in tiles with blended seams); default 256.
+        /// Tile size in pixels (frames are processed in tiles with blended seams); default 384.
         #[arg(long)]
         tile: Option<usize>,
         /// Overlap between tiles in pixels; default 32.

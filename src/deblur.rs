@@ -40,7 +40,7 @@ pub struct DeblurConfig {
 
 impl Default for DeblurConfig {
     fn default() -> Self {
-        DeblurConfig { model: String::new(), tile: 256, overlap: 32, lossless: false }
+        DeblurConfig { model: String::new(), tile: 384, overlap: 32, lossless: false }
     }
 }
 
@@ -72,14 +72,17 @@ pub struct Tiling {
     pub overlap: usize,
 }
 
-/// Start positions of tiles of `t` covering `0..n` with at least `o` overlap.
-fn starts(n: usize, t: usize, o: usize) -> Vec<usize> {
+/// Tiles of at most `t` covering `0..n`, overlapping by at least `o`: as few as that allows,
+/// all of one size, spread evenly (so no tile is mostly overlap). Returns the size and the
+/// start positions.
+fn tiles_1d(n: usize, t: usize, o: usize) -> (usize, Vec<usize>) {
     if n <= t {
-        return vec![0];
+        return (n, vec![0]);
     }
-    let step = t - o;
-    let count = (n - o).div_ceil(step);
-    (0..count).map(|i| (i * step).min(n - t)).collect()
+    let count = (n - o).div_ceil(t - o);
+    let size = (n + (count - 1) * o).div_ceil(count);
+    let step = size - o;
+    (size, (0..count).map(|i| (i * step).min(n - size)).collect())
 }
 
 /// Blending weight of position `i` in a tile of length `len` placed at `start` in `0..n`: a
@@ -100,9 +103,8 @@ fn ramp(i: usize, len: usize, start: usize, n: usize, o: usize) -> f32 {
 /// fixed order, so the result does not depend on the number of threads.
 pub fn run_frame(net: &Net, rgb: &[u8], w: usize, h: usize, tiling: Tiling, device: &Device) -> Vec<u8> {
     let (t, o) = (tiling.tile.max(16), tiling.overlap.min(tiling.tile / 2));
-    let (tw, th) = (t.min(w), t.min(h));
-    let tiles: Vec<(usize, usize)> =
-        starts(h, t, o).into_iter().flat_map(|y0| starts(w, t, o).into_iter().map(move |x0| (x0, y0))).collect();
+    let ((tw, xs), (th, ys)) = (tiles_1d(w, t, o), tiles_1d(h, t, o));
+    let tiles: Vec<(usize, usize)> = ys.iter().flat_map(|&y0| xs.iter().map(move |&x0| (x0, y0))).collect();
     let forward = |&(x0, y0): &(usize, usize)| -> Vec<f32> {
         let mut v = vec![0.0f32; 3 * tw * th];
         for y in 0..th {
@@ -406,9 +408,13 @@ mod tests {
 
     #[test]
     fn tiles_cover_the_frame_with_the_overlap() {
-        assert_eq!(starts(100, 128, 16), vec![0]);
-        let s = starts(300, 128, 32);
-        assert_eq!(*s.last().unwrap(), 300 - 128);
-        assert!(s.windows(2).all(|p| p[1] - p[0] <= 128 - 32));
+        assert_eq!(tiles_1d(100, 128, 16), (100, vec![0]));
+        for (n, t, o) in [(300, 128, 32), (720, 256, 32), (1280, 384, 32), (1081, 200, 17)] {
+            let (size, s) = tiles_1d(n, t, o);
+            assert!(size <= t && s[0] == 0 && s.last().unwrap() + size == n, "{n} {t} {o}: {size} {s:?}");
+            assert!(s.windows(2).all(|p| p[0] + size >= p[1] + o), "{n} {t} {o}: overlap below {o}: {s:?}");
+        }
+        // Evenly spread: 720 in tiles of at most 256 needs 4, each 204 (not 3 of 256 and a sliver).
+        assert_eq!(tiles_1d(720, 256, 32), (204, vec![0, 172, 344, 516]));
     }
 }

@@ -79,7 +79,7 @@ impl Default for EvalConfig {
             skip: 0,
             crop: 0,
             examples: 4,
-            tile: 256,
+            tile: 384,
             overlap: 32,
             curve: Curve::Srgb,
             threads: 0,

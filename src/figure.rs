@@ -392,7 +392,8 @@ fn spoke(o: &FigureOptions, out: &Path) -> Result<Vec<Score>> {
         }
         Ok(burn::module::Module::valid(&crate::train::load_model(&p, &device)?.0))
     };
-    let tiling = crate::deblur::Tiling { tile: 256, overlap: 32 };
+    let d = crate::deblur::DeblurConfig::default();
+    let tiling = crate::deblur::Tiling { tile: d.tile, overlap: d.overlap };
     let mut panels = vec![Panel::from_rgb8("(A) ROTATING TARGET, SHARP", w, h, &sharp)];
     let mut recon_panels = vec![Panel { label: String::new(), w, h, px: std::array::from_fn(|_| vec![1.0; w * h]) }];
     let mut scores = Vec::new();
