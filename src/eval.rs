@@ -264,7 +264,7 @@ fn read_frames(path: &Path, first: u64, last: u64, curve: Curve) -> Result<Vec<A
 pub fn run(f: &EvalFile, net: &Net, model: &str, videos: &[String], out: &Path, progress: bool) -> Result<EvalReport> {
     let t0 = Instant::now();
     let e = &f.eval;
-    let paths = expand_paths(videos, &["mp4", "mkv", "mov", "avi", "webm", "m4v", "y4m", "nut"])?;
+    let paths = expand_paths(videos, crate::graph::VIDEO_EXTS)?;
     std::fs::create_dir_all(out.join("examples")).map_err(|err| Error::Io { path: out.to_path_buf(), source: err })?;
     let camera = Arc::new(Camera::new(&f.optics, &f.camera));
     let sigma_scale = 1.0 / camera.light_throughput().max(1e-6);

@@ -106,7 +106,8 @@ pub struct Report {
     pub config: serde_json::Value,
 }
 
-const VIDEO_EXTS: &[&str] = &["mp4", "mkv", "mov", "avi", "webm", "m4v", "mts", "ts", "y4m", "nut"];
+/// File extensions taken from a folder of videos.
+pub const VIDEO_EXTS: &[&str] = &["mp4", "mkv", "mov", "avi", "webm", "m4v", "mts", "ts", "y4m", "nut"];
 
 /// The inputs of the plan's source, sorted, each with its global index.
 ///
