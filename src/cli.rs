@@ -148,6 +148,13 @@ pub enum Command {
         /// Seed of the noise.
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// Lucy-Richardson iterations for the parabolic camera (spoke).
+        #[arg(long, default_value_t = 30, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+        lr_iterations: u32,
+        /// Tikhonov weight of the flutter least squares (spoke), above 0: an image row does not
+        /// see the scene beyond the frame, so plain least squares is singular there.
+        #[arg(long, default_value_t = 1e-2)]
+        flutter_lambda: f64,
     },
     /// Check pipeline files and report every error, each naming its key.
     Validate {
@@ -602,11 +609,23 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             Ok(())
         }
         #[cfg(feature = "train")]
-        Command::Figure { name, out, sigma, travel, size, models, seed } => {
+        Command::Figure { name, out, sigma, travel, size, models, seed, lr_iterations, flutter_lambda } => {
             if !(0.0..=50.0).contains(&sigma) || !(0.0..=200.0).contains(&travel) || !(32..=2048).contains(&size) {
                 bail!("--sigma must be in 0..50, --travel in 0..200 and --size in 32..2048");
             }
-            let o = crate::figure::FigureOptions { sigma, travel_px: travel, size, models, seed, ..Default::default() };
+            if !(flutter_lambda > 0.0 && flutter_lambda <= 10.0) {
+                bail!("--flutter-lambda must be above 0 and at most 10 (got {flutter_lambda})");
+            }
+            let o = crate::figure::FigureOptions {
+                sigma,
+                travel_px: travel,
+                size,
+                models,
+                seed,
+                lr_iterations: lr_iterations as usize,
+                flutter_lambda,
+                ..Default::default()
+            };
             let r = crate::figure::draw(name, &o, &out)?;
             if !r.scores.is_empty() {
                 println!("{}", crate::figure::scores_markdown(&r));

@@ -53,4 +53,8 @@ fn figures_are_drawn_with_their_tables_and_a_missing_model_is_named() {
     let o = run(&["figure", "spoke", "-o", d.join("x.png").to_str().unwrap(), "--models", d.join("nowhere").to_str().unwrap()]);
     assert!(!o.status.success() && stderr(&o).contains("nowhere"), "{}", stderr(&o));
     assert!(!d.join("x.png").exists());
+    // Plain least squares on image rows is singular: refused by name, not a panic.
+    let o = run(&["figure", "spoke", "-o", d.join("x.png").to_str().unwrap(), "--flutter-lambda", "0"]);
+    assert!(!o.status.success() && stderr(&o).contains("--flutter-lambda"), "{}", stderr(&o));
+    assert!(!d.join("x.png").exists());
 }
