@@ -10,7 +10,6 @@
 use crate::config::expand_paths;
 use crate::deblur::{run_frame, Tiling};
 use crate::frame::Frame;
-use crate::io::font;
 use crate::io::video::VideoReader;
 use crate::io::write_atomic;
 use crate::metrics::{quality, Quality};
@@ -18,13 +17,14 @@ use crate::model::Net;
 use crate::optics::config::Checker;
 use crate::optics::transfer::{Curve, Encoder};
 use crate::optics::{Camera, CameraConfig, ConfigError, OpticsConfig};
+use crate::plot::{Canvas, Panel};
 use crate::rng::{hash, hash_str};
 use crate::stage::blur::Blurrer;
 use crate::stage::noise::quantise;
 use crate::stage::Linearize;
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::sync::Arc;
 use std::time::Instant;
 
@@ -219,24 +219,11 @@ fn region(w: usize, h: usize, crop: usize) -> [usize; 4] {
 
 /// Draws blurred | deblurred | sharp with their PSNR above.
 fn side_by_side(path: &Path, w: usize, h: usize, panels: [&[u8]; 3], labels: [String; 3]) -> Result<()> {
-    let tw = 3 * w + 2 * GAP;
-    let th = LABEL_H + h;
-    let mut planes: [Vec<f32>; 3] = std::array::from_fn(|_| vec![1.0f32; tw * th]);
-    for (i, p) in panels.iter().enumerate() {
-        let x0 = i * (w + GAP);
-        for y in 0..h {
-            for x in 0..w {
-                for (c, plane) in planes.iter_mut().enumerate() {
-                    plane[(LABEL_H + y) * tw + x0 + x] = p[(y * w + x) * 3 + c] as f32 / 255.0;
-                }
-            }
-        }
-        // Scale 2 when the label fits the panel, else the 3x5 font at scale 1.
-        let scale = if font::text_width(&labels[i], 2) <= w { 2 } else { 1 };
-        font::draw_text(&mut planes, tw, x0 + 1, 2, &labels[i], scale, [0.0, 0.0, 0.0]);
+    let mut canvas = Canvas::new(3 * w + 2 * GAP, LABEL_H + h, [1.0; 3]);
+    for (i, (rgb, label)) in panels.into_iter().zip(labels).enumerate() {
+        canvas.draw_panel((i * (w + GAP), 0), LABEL_H, w, &Panel::from_rgb8(label, w, h, rgb), 1);
     }
-    let rgb: Vec<u8> = (0..tw * th).flat_map(|i| [0, 1, 2].map(|c| (planes[c][i] * 255.0).round() as u8)).collect();
-    write_atomic(path, |wr| crate::io::png::write_rgb8(wr, tw, th, &rgb))
+    canvas.save(path)
 }
 
 /// Decodes the frames `first..=last` of a video (stopping early at its end), tagged linear.
@@ -433,11 +420,6 @@ pub fn markdown(r: &EvalReport) -> String {
 
 /// The default eval file, embedded.
 pub const EVAL_TOML: &str = include_str!("../pipelines/eval.toml");
-
-/// Where `eval` writes when no `-o` is given.
-pub fn default_out() -> PathBuf {
-    PathBuf::from("eval-out")
-}
 
 #[cfg(test)]
 mod tests {

@@ -14,11 +14,12 @@
 //! brought to the same brightness, gets `sigma / 0.5` (it collects half the light).
 
 use crate::frame::{Frame, FrameData};
-use crate::io::{font, png as png_io, write_atomic};
+use crate::io::write_atomic;
 use crate::metrics::{quality, Quality};
 use crate::optics::config::Axis;
 use crate::optics::transfer::{Curve, Encoder};
 use crate::optics::{Camera, CameraConfig, CameraKind, OpticsConfig};
+use crate::plot::{Canvas, Panel};
 use crate::recon::{lucy_richardson, Ends, FlutterSolver};
 use crate::rng::{hash, hash_str};
 use crate::scene::{sub_time, SceneKind, SceneParams};
@@ -117,26 +118,6 @@ fn label(kind: CameraKind) -> &'static str {
     }
 }
 
-/// One labelled picture of a figure: planar RGB in [0, 1] (display values).
-pub struct Panel {
-    pub label: String,
-    pub w: usize,
-    pub h: usize,
-    pub px: [Vec<f32>; 3],
-}
-
-impl Panel {
-    fn from_rgb8(label: impl Into<String>, w: usize, h: usize, rgb: &[u8]) -> Panel {
-        Panel { label: label.into(), w, h, px: std::array::from_fn(|c| (0..w * h).map(|i| rgb[i * 3 + c] as f32 / 255.0).collect()) }
-    }
-
-    /// Linear planes shown with their own peak at 1, sRGB-encoded ("gamma correction").
-    fn from_linear_normalised(label: impl Into<String>, w: usize, h: usize, p: &[Vec<f32>; 3]) -> Panel {
-        let peak = p.iter().flat_map(|c| c.iter()).fold(1e-12f32, |m, v| m.max(*v));
-        Panel { label: label.into(), w, h, px: std::array::from_fn(|c| p[c].iter().map(|v| png_io::srgb_encode(v / peak)).collect()) }
-    }
-}
-
 const LABEL_BAR: usize = 16;
 const MARGIN: usize = 8;
 
@@ -146,23 +127,13 @@ fn compose(path: &Path, title: &str, panels: &[Panel], cols: usize, scale: usize
     let cw = panels.iter().map(|p| p.w * scale).max().unwrap_or(0).max(160);
     let ch = panels.iter().map(|p| p.h * scale).max().unwrap_or(0);
     let rows = panels.len().div_ceil(cols);
-    let (w, h) = (MARGIN + cols * (cw + MARGIN), 2 * LABEL_BAR + rows * (ch + LABEL_BAR + MARGIN));
-    let mut planes: [Vec<f32>; 3] = std::array::from_fn(|_| vec![1.0f32; w * h]);
-    font::draw_text(&mut planes, w, MARGIN, 4, title, 2, [0.0, 0.0, 0.0]);
+    let mut canvas = Canvas::new(MARGIN + cols * (cw + MARGIN), 2 * LABEL_BAR + rows * (ch + LABEL_BAR + MARGIN), [1.0; 3]);
+    canvas.text(MARGIN, 4, title, [0.0, 0.0, 0.0]);
     for (i, p) in panels.iter().enumerate() {
         let (x0, y0) = (MARGIN + (i % cols) * (cw + MARGIN), 2 * LABEL_BAR + (i / cols) * (ch + LABEL_BAR + MARGIN));
-        let s = if font::text_width(&p.label, 2) <= cw { 2 } else { 1 };
-        font::draw_text(&mut planes, w, x0, y0 + 3, &p.label, s, [0.0, 0.0, 0.0]);
-        for y in 0..p.h * scale {
-            for x in 0..p.w * scale {
-                for (c, plane) in planes.iter_mut().enumerate() {
-                    plane[(y0 + LABEL_BAR + y) * w + x0 + x] = p.px[c][(y / scale) * p.w + x / scale].clamp(0.0, 1.0);
-                }
-            }
-        }
+        canvas.draw_panel((x0, y0), LABEL_BAR, cw, p, scale);
     }
-    let rgb: Vec<u8> = (0..w * h).flat_map(|i| [0, 1, 2].map(|c| (planes[c][i] * 255.0).round() as u8)).collect();
-    write_atomic(path, |wr| png_io::write_rgb8(wr, w, h, &rgb))
+    canvas.save(path)
 }
 
 /// Sums the sub-frames through a camera (linear light), re-encodes and adds noise: the 8-bit

@@ -51,6 +51,43 @@ impl Canvas {
     }
 }
 
+/// One labelled picture for a figure: planar RGB display values in [0, 1].
+pub struct Panel {
+    pub label: String,
+    pub w: usize,
+    pub h: usize,
+    pub px: [Vec<f32>; 3],
+}
+
+impl Panel {
+    /// From interleaved 8-bit RGB.
+    pub fn from_rgb8(label: impl Into<String>, w: usize, h: usize, rgb: &[u8]) -> Panel {
+        Panel { label: label.into(), w, h, px: std::array::from_fn(|c| (0..w * h).map(|i| rgb[i * 3 + c] as f32 / 255.0).collect()) }
+    }
+
+    /// Linear planes shown with their own peak at 1, sRGB-encoded ("gamma correction").
+    pub fn from_linear_normalised(label: impl Into<String>, w: usize, h: usize, p: &[Vec<f32>; 3]) -> Panel {
+        let peak = p.iter().flat_map(|c| c.iter()).fold(1e-12f32, |m, v| m.max(*v));
+        Panel { label: label.into(), w, h, px: std::array::from_fn(|c| p[c].iter().map(|v| png_io::srgb_encode(v / peak)).collect()) }
+    }
+}
+
+impl Canvas {
+    /// Draws `p` with its top-left at (x0, y0): its label in a bar `label_h` high (font scale 2
+    /// when it fits `width`, else 1), then its pixels, each repeated `scale` times (nearest).
+    pub fn draw_panel(&mut self, (x0, y0): (usize, usize), label_h: usize, width: usize, p: &Panel, scale: usize) {
+        let s = if font::text_width(&p.label, 2) <= width { 2 } else { 1 };
+        font::draw_text(&mut self.px, self.w, x0 + 1, y0 + 2, &p.label, s, [0.0, 0.0, 0.0]);
+        for y in 0..p.h * scale {
+            for x in 0..p.w * scale {
+                for (c, plane) in self.px.iter_mut().enumerate() {
+                    plane[(y0 + label_h + y) * self.w + x0 + x] = p.px[c][(y / scale) * p.w + x / scale].clamp(0.0, 1.0);
+                }
+            }
+        }
+    }
+}
+
 /// One series of (x, y) points with a name and a colour.
 pub struct Series<'a> {
     pub name: &'a str,
