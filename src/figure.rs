@@ -22,7 +22,7 @@ use crate::optics::{Camera, CameraConfig, CameraKind, OpticsConfig};
 use crate::plot::{Canvas, Panel};
 use crate::recon::{lucy_richardson, Ends, FlutterSolver};
 use crate::rng::{hash, hash_str};
-use crate::scene::{sub_time, SceneKind, SceneParams};
+use crate::scene::{SceneKind, SceneParams};
 use crate::stage::blur::Blurrer;
 use crate::stage::noise::quantise;
 use crate::{Error, Result};
@@ -242,21 +242,16 @@ fn dilate(rgb: &[u8], w: usize, h: usize) -> Vec<u8> {
 /// The (x, t) slice of a point moving `travel` px along x: row k is sub-frame k's PSF through
 /// y = 0, shifted to where the point is. Per channel, `x_len x n`.
 pub fn xt_slice(cam: &Camera, n: usize, travel: f64, x_len: usize) -> Result<[Vec<f64>; 3]> {
-    let win = cam.window(n)?;
     let half = x_len / 2;
+    let side = 2 * half + 1;
     let mut out: [Vec<f64>; 3] = std::array::from_fn(|_| vec![0.0; x_len * n]);
-    for (k, kern) in win.iter().enumerate() {
-        let moved = crate::optics::camera::SubframeKernel {
-            shift: [kern.shift[0] + travel / 2.0 * sub_time(k, n), kern.shift[1]],
-            weight: kern.weight * n as f64,
-            ..kern.clone()
-        };
-        let need = moved.half_extent().max(half);
-        let side = 2 * need + 1;
+    for (k, kern) in cam.moving_kernels(n, [travel, 0.0])?.into_iter().enumerate() {
+        // Each row at the sub-frame's own brightness (not its share of the exposure).
+        let kern = crate::optics::camera::SubframeKernel { weight: kern.weight * n as f64, ..kern };
         for (c, o) in out.iter_mut().enumerate() {
-            let img = moved.render(c, need);
+            let img = kern.render_cropped(c, half);
             for x in 0..x_len {
-                o[k * x_len + x] = img[need * side + need - half + x] as f64;
+                o[k * x_len + x] = img[half * side + x] as f64;
             }
         }
     }
@@ -473,6 +468,7 @@ pub fn draw(name: FigureName, o: &FigureOptions, out: &Path) -> Result<FigureRep
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::scene::sub_time;
 
     #[test]
     fn flutter_capture_of_an_object_moving_right_is_undone_by_least_squares() {

@@ -71,6 +71,20 @@ impl SubframeKernel {
     }
 }
 
+impl SubframeKernel {
+    /// As [`SubframeKernel::render`] on a `(2 half + 1)^2` grid of the caller's choice: the parts
+    /// of the kernel that fall outside it are dropped.
+    pub fn render_cropped(&self, c: usize, half: usize) -> Vec<f32> {
+        let need = self.half_extent().max(half);
+        if need == half {
+            return self.render(c, half);
+        }
+        let big = self.render(c, need);
+        let (bn, off, side) = (2 * need + 1, need - half, 2 * half + 1);
+        (0..side * side).map(|i| big[(i / side + off) * bn + i % side + off]).collect()
+    }
+}
+
 /// A camera with a kernel cache: each (N, k) kernel is computed once per camera.
 pub struct Camera {
     optics: OpticsConfig,
@@ -223,26 +237,31 @@ impl Camera {
     /// # Errors
     /// As [`Camera::window`].
     pub fn moving_point(&self, n: usize, travel: [f64; 2], half: usize) -> Result<[Vec<f32>; 3], ConfigError> {
-        let win = self.window(n)?;
         let side = 2 * half + 1;
         let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0f32; side * side]);
-        for (k, kern) in win.iter().enumerate() {
-            let t = crate::scene::sub_time(k, n);
-            let moved =
-                SubframeKernel { shift: [kern.shift[0] + travel[0] / 2.0 * t, kern.shift[1] + travel[1] / 2.0 * t], ..kern.clone() };
-            // Parts that fall outside the grid are dropped (the caller picks `half`).
-            let need = moved.half_extent();
+        for kern in self.moving_kernels(n, travel)? {
             for (c, o) in out.iter_mut().enumerate() {
-                let big = moved.render(c, need.max(half));
-                let (bn, off) = (2 * need.max(half) + 1, need.max(half) - half);
-                for y in 0..side {
-                    for x in 0..side {
-                        o[y * side + x] += big[(y + off) * bn + x + off];
-                    }
-                }
+                o.iter_mut().zip(kern.render_cropped(c, half)).for_each(|(a, v)| *a += v);
             }
         }
         Ok(out)
+    }
+
+    /// The window's kernels with a point's motion added to their shifts: sub-frame k (time t_k
+    /// in [-1, 1]) is displaced by `travel / 2 * t_k`.
+    ///
+    /// # Errors
+    /// As [`Camera::window`].
+    pub fn moving_kernels(&self, n: usize, travel: [f64; 2]) -> Result<Vec<SubframeKernel>, ConfigError> {
+        Ok(self
+            .window(n)?
+            .iter()
+            .enumerate()
+            .map(|(k, kern)| {
+                let t = crate::scene::sub_time(k, n);
+                SubframeKernel { shift: [kern.shift[0] + travel[0] / 2.0 * t, kern.shift[1] + travel[1] / 2.0 * t], ..kern.clone() }
+            })
+            .collect())
     }
 
     /// The N kernels of a window, computed once per N (PSFs in parallel on all cores), then
