@@ -138,12 +138,12 @@ fn compose(path: &Path, title: &str, panels: &[Panel], cols: usize, scale: usize
 
 /// Sums the sub-frames through a camera (linear light), re-encodes and adds noise: the 8-bit
 /// capture and the sigma used.
-fn capture(frames: &[[Vec<f32>; 3]], w: usize, h: usize, cam: Camera, sigma: f64, key: u64) -> Result<(Vec<u8>, f64)> {
+fn capture(frames: &[[Vec<f32>; 3]], w: usize, h: usize, cam: &Arc<Camera>, sigma: f64, key: u64) -> Result<(Vec<u8>, f64)> {
     let sigma = sigma / cam.light_throughput();
     let n = frames.len();
     let lin: Vec<Arc<Frame>> =
         frames.iter().map(|p| Arc::new(Frame { curve: Some(Curve::Identity), ..Frame::new(w, h, FrameData::Planar(p.clone())) })).collect();
-    let mut b = Blurrer::new(Arc::new(cam), n, 0, 1e-3)?;
+    let mut b = Blurrer::new(cam.clone(), n, 0, 1e-3)?;
     let planes = b.blur_region(&lin, 0, 0, w, h);
     Ok((quantise(&planes, w, h, 0, 0, &Encoder::new(Curve::Srgb), sigma, key), sigma))
 }
@@ -212,7 +212,7 @@ fn dots(o: &FigureOptions, out: &Path) -> Result<Vec<Score>> {
     for (i, kind) in [CameraKind::Conventional, CameraKind::Flutter, CameraKind::Parabolic, CameraKind::PhaseCoded].into_iter().enumerate()
     {
         let key = hash(&[o.seed, i as u64, hash_str("figure-dots")]);
-        let (img, sigma) = capture(&frames, w, h, camera(kind, travel), o.sigma, key)?;
+        let (img, sigma) = capture(&frames, w, h, &Arc::new(camera(kind, travel)), o.sigma, key)?;
         panels.push(Panel::from_rgb8(format!("({}) {} SIGMA {sigma}", (b'C' + i as u8) as char, label(kind)), w, h, &dilate(&img, w, h)));
     }
     let title = format!("MOVING DOTS, FASTEST {travel} PX PER EXPOSURE, 3X3 DILATION");
@@ -365,15 +365,9 @@ fn spoke(o: &FigureOptions, out: &Path) -> Result<Vec<Score>> {
     let mut scores = Vec::new();
     for (i, kind) in [CameraKind::Conventional, CameraKind::Flutter, CameraKind::Parabolic, CameraKind::PhaseCoded].into_iter().enumerate()
     {
-        let cam = camera(kind, o.travel_px);
+        let cam = Arc::new(camera(kind, o.travel_px));
         let key = hash(&[o.seed, i as u64, hash_str("figure-spoke")]);
-        let weights = cam.weights(o.frames);
-        // The parabolic camera's one kernel: a still point through the sweep.
-        let kernel_half = 4
-            + (cam.config().parabolic_amplitude_px.ceil() as usize)
-            + cam.window(o.frames)?.iter().map(|k| k.psf.half()).max().unwrap_or(0);
-        let still = cam.moving_point(o.frames, [0.0, 0.0], kernel_half)?;
-        let (img, sigma) = capture(&frames, w, h, cam, o.sigma, key)?;
+        let (img, sigma) = capture(&frames, w, h, &cam, o.sigma, key)?;
         let (method, rec) = match kind {
             CameraKind::Conventional => {
                 ("U-Net 16 (conventional)", crate::deblur::run_frame(&model("unet16-conventional")?, &img, w, h, tiling, &device))
@@ -381,10 +375,15 @@ fn spoke(o: &FigureOptions, out: &Path) -> Result<Vec<Score>> {
             CameraKind::PhaseCoded => ("U-Net 16 (coded)", crate::deblur::run_frame(&model("unet16-coded")?, &img, w, h, tiling, &device)),
             CameraKind::Flutter => {
                 // The code for motion to the right over the rim's extent, as in the paper.
-                let solver = FlutterSolver::new(w, &weights, o.travel_px, Ends::Extend, o.flutter_lambda);
+                let solver = FlutterSolver::new(w, &cam.weights(o.frames), o.travel_px, Ends::Extend, o.flutter_lambda);
                 ("least squares, right, rim extent", encode(&solver.solve_planes(&linear(&img), h), w, h))
             }
             _ => {
+                // The parabolic camera's one kernel: a still point through the sweep.
+                let kernel_half = 4
+                    + (cam.config().parabolic_amplitude_px.ceil() as usize)
+                    + cam.window(o.frames)?.iter().map(|k| k.psf.half()).max().unwrap_or(0);
+                let still = cam.moving_point(o.frames, [0.0, 0.0], kernel_half)?;
                 let lin = linear(&img);
                 let rec: [Vec<f32>; 3] = std::array::from_fn(|c| lucy_richardson(&lin[c], w, h, &still[c], o.lr_iterations));
                 ("Lucy-Richardson", encode(&rec, w, h))
@@ -494,9 +493,9 @@ mod tests {
             })
             .collect();
         let sharp: [Vec<f32>; 3] = std::array::from_fn(|c| (0..w * h).map(|i| tex((i % w) as f64, i / w, c)).collect());
-        let cam = Camera::new(&OpticsConfig::default(), &CameraConfig::new(CameraKind::Flutter));
+        let cam = Arc::new(Camera::new(&OpticsConfig::default(), &CameraConfig::new(CameraKind::Flutter)));
         let weights = cam.weights(n);
-        let (img, sigma) = capture(&frames, w, h, cam, 0.0, 1).unwrap();
+        let (img, sigma) = capture(&frames, w, h, &cam, 0.0, 1).unwrap();
         assert_eq!(sigma, 0.0);
         let rec = FlutterSolver::new(w, &weights, travel, Ends::Extend, 1e-6).solve_planes(&linear(&img), h);
         let rmse = |p: &[Vec<f32>; 3]| {

@@ -328,19 +328,20 @@ impl Source for Scene {
             spokes: c.spokes,
         };
         let enc = crate::optics::transfer::Encoder::new(crate::optics::transfer::Curve::Srgb);
+        // Every clip is the same exposure: render it once (frames share their pixels).
+        let frames: Vec<Frame> = params
+            .render()
+            .into_iter()
+            .map(|p| {
+                Frame::new(
+                    params.width,
+                    params.height,
+                    FrameData::Planar(p.map(|v| v.into_iter().map(|x| enc.encode(x.min(1.0))).collect())),
+                )
+            })
+            .collect();
         for input in &self.inputs {
-            let frames: Vec<Frame> = params
-                .render()
-                .into_iter()
-                .map(|p| {
-                    Frame::new(
-                        params.width,
-                        params.height,
-                        FrameData::Planar(p.map(|v| v.into_iter().map(|x| enc.encode(x.min(1.0))).collect())),
-                    )
-                })
-                .collect();
-            if !emit_clip(out, input, frames, c.fps, "scene", &self.needs, &self.counters) {
+            if !emit_clip(out, input, frames.clone(), c.fps, "scene", &self.needs, &self.counters) {
                 return Ok(());
             }
         }
