@@ -81,14 +81,8 @@ pub enum Command {
         /// Lossless output (FFV1 RGB in .mkv) instead of H.264.
         #[arg(long)]
         lossless: bool,
-        /// A deblur file ([deblur] model, tile, overlap, lossless); default: pipelines/deblur.toml (embedded).
-        #[arg(long)]
-        config: Option<PathBuf>,
-        /// Override one key of the deblur file: --set deblur.tile=512 (repeatable).
-        #[arg(long = "set", value_name = "KEY=VALUE")]
-        sets: Vec<String>,
-        #[arg(long, value_enum, default_value_t = ProgressMode::Auto)]
-        progress: ProgressMode,
+        #[command(flatten)]
+        file: ConfigArgs,
     },
     /// Score a model the way the paper's Table 1 does: windows of N = 7..13 frames from your
     /// videos, noise sigma 0..3, PSNR/SSIM (RGB and Y) of the deblurred frame and of the blurred
@@ -111,14 +105,8 @@ pub enum Command {
         /// was trained for.
         #[arg(long, value_enum)]
         camera: Option<CameraKind>,
-        /// An eval file; default: pipelines/eval.toml (embedded).
-        #[arg(long)]
-        config: Option<PathBuf>,
-        /// Override one key: --set eval.crop=256 (repeatable).
-        #[arg(long = "set", value_name = "KEY=VALUE")]
-        sets: Vec<String>,
-        #[arg(long, value_enum, default_value_t = ProgressMode::Auto)]
-        progress: ProgressMode,
+        #[command(flatten)]
+        file: ConfigArgs,
     },
     /// Draw one of the paper's comparison figures (conventional, fluttered shutter, parabolic
     /// motion and the coded camera) as a labelled PNG.
@@ -168,6 +156,36 @@ pub enum Command {
     /// Measure speed (medians of repeats); not part of the tests.
     #[command(subcommand)]
     Bench(BenchCommand),
+}
+
+/// `--config`, `--set` and `--progress` of the commands that read one settings file
+/// (`deblur`: pipelines/deblur.toml, `eval`: pipelines/eval.toml).
+#[derive(Args, Debug)]
+pub struct ConfigArgs {
+    /// The command's settings file; default: its pipelines/*.toml, embedded in the binary.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Override one key of that file: --set deblur.tile=512, --set eval.crop=256 (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub sets: Vec<String>,
+    #[arg(long, value_enum, default_value_t = ProgressMode::Auto)]
+    pub progress: ProgressMode,
+}
+
+impl ConfigArgs {
+    /// The file, or the embedded default `name`, with the overrides applied; and its name.
+    fn load(&self, embedded: &str, name: &str) -> crate::Result<(toml::Table, String)> {
+        load_or_embedded(self.config.as_deref(), embedded, name, &self.sets)
+    }
+
+    fn bar(&self) -> bool {
+        bars(self.progress)
+    }
+}
+
+/// Progress bars: on a terminal, unless told otherwise.
+fn bars(progress: ProgressMode) -> bool {
+    progress == ProgressMode::Auto && std::io::IsTerminal::is_terminal(&std::io::stderr())
 }
 
 #[derive(Subcommand, Debug)]
@@ -497,7 +515,6 @@ fn describe(table: toml::Table, origin: &str) -> crate::Result<String> {
 
 /// The file given with `--config`, or the embedded default named `name`, with `--set` applied;
 /// and the name to put in error messages.
-#[cfg(feature = "train")]
 fn load_or_embedded(config: Option<&std::path::Path>, embedded: &str, name: &str, sets: &[String]) -> crate::Result<(toml::Table, String)> {
     match config {
         Some(p) => Ok((crate::config::load(p, sets)?, p.display().to_string())),
@@ -516,10 +533,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Psf(a) => run_psf(a),
         Command::Generate(a) => {
-            let mut table = match &a.config {
-                Some(p) => crate::config::load(p, &[])?,
-                None => crate::config::parse(GENERATE_TOML, "pipelines/generate.toml (embedded)", &[])?,
-            };
+            let (mut table, origin) = load_or_embedded(a.config.as_deref(), GENERATE_TOML, "pipelines/generate.toml", &[])?;
             if !a.videos.is_empty() {
                 let sources = table
                     .get_mut("sources")
@@ -532,7 +546,6 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
                 }
             }
             crate::config::apply_sets(&mut table, &a.common.sets).map_err(crate::Error::ConfigText)?;
-            let origin = a.config.as_ref().map_or("pipelines/generate.toml (embedded)".to_string(), |p| p.display().to_string());
             run_plan(table, &origin, a.out.as_ref(), &a.common)
         }
         #[cfg(feature = "train")]
@@ -541,7 +554,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             let cfg: crate::train::TrainConfig = toml::Value::Table(table)
                 .try_into()
                 .map_err(|e: toml::de::Error| crate::Error::ConfigText(format!("{}: {}", config.display(), e.to_string().trim())))?;
-            let bar = progress == ProgressMode::Auto && std::io::IsTerminal::is_terminal(&std::io::stderr());
+            let bar = bars(progress);
             let r = crate::train::train(&cfg, &crate::train::TrainOptions { resume, progress: bar, stop_after: None })?;
             let last = r.validation.last();
             eprintln!(
@@ -559,12 +572,12 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             Ok(())
         }
         #[cfg(feature = "train")]
-        Command::Deblur { input, out, model, tile, overlap, lossless, config, sets, progress } => {
+        Command::Deblur { input, out, model, tile, overlap, lossless, file } => {
             let same = input.canonicalize().ok().zip(out.canonicalize().ok()).is_some_and(|(a, b)| a == b) || input == out;
             if same {
                 bail!("{}: the output is the input; choose another output path", out.display());
             }
-            let (table, origin) = load_or_embedded(config.as_deref(), crate::deblur::DEBLUR_TOML, "pipelines/deblur.toml", &sets)?;
+            let (table, origin) = file.load(crate::deblur::DEBLUR_TOML, "pipelines/deblur.toml")?;
             let mut d = crate::deblur::DeblurFile::from_table(table, &origin)?.deblur;
             d.tile = tile.unwrap_or(d.tile);
             d.overlap = overlap.unwrap_or(d.overlap);
@@ -573,7 +586,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             let device = burn::tensor::Device::flex();
             let (net, name) = crate::deblur::load(model.as_deref(), &device)?;
             let tiling = crate::deblur::Tiling { tile: d.tile, overlap: d.overlap };
-            let bar = progress == ProgressMode::Auto && std::io::IsTerminal::is_terminal(&std::io::stderr());
+            let bar = file.bar();
             let r = if input.is_dir() || input.to_string_lossy().contains('*') {
                 crate::deblur::images(&net, &name, &input, &out, tiling, bar)?
             } else {
@@ -594,15 +607,15 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
             Ok(())
         }
         #[cfg(all(feature = "train", feature = "ffmpeg"))]
-        Command::Eval { videos, out, model, camera, config, sets, progress } => {
-            let (table, origin) = load_or_embedded(config.as_deref(), crate::eval::EVAL_TOML, "pipelines/eval.toml", &sets)?;
+        Command::Eval { videos, out, model, camera, file } => {
+            let (table, origin) = file.load(crate::eval::EVAL_TOML, "pipelines/eval.toml")?;
             let mut f = crate::eval::EvalFile::from_table(table, &origin)?;
             if let Some(k) = camera {
                 f.camera.kind = k;
             }
             let device = burn::tensor::Device::flex();
             let (net, name) = crate::deblur::load(model.as_deref(), &device)?;
-            let bar = progress == ProgressMode::Auto && std::io::IsTerminal::is_terminal(&std::io::stderr());
+            let bar = file.bar();
             let r = crate::eval::run(&f, &net, &name, &videos, &out, bar)?;
             println!("{}", crate::eval::markdown(&r));
             eprintln!("{} windows scored in {:.0} s -> {}", r.records.len(), r.seconds, out.join("eval.md").display());
