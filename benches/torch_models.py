@@ -6,10 +6,14 @@ Usage: python3 benches/torch_models.py unet|shallow WIDTH BATCH REPEATS
        python3 benches/torch_models.py infer unet|shallow WIDTH HEIGHT FRAME_WIDTH REPEATS
 Skipped by `pipeline bench train` when torch is not installed.
 """
-import json, statistics, sys, time
+import json, os, statistics, sys, time
 
 import torch
 from torch import nn
+
+# The same thread count as the Rust side (`pipeline bench` passes its rayon pool size).
+if os.environ.get("TORCH_THREADS"):
+    torch.set_num_threads(int(os.environ["TORCH_THREADS"]))
 
 
 def conv_bn(cin, cout):

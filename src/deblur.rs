@@ -5,10 +5,9 @@
 //! go in as decoded. Audio is not copied (the report says so).
 
 use crate::io::{png as png_io, write_atomic};
-use crate::model::Net;
+use crate::model::fast::{FastNet, T4};
 use crate::{Error, Result};
-use burn::module::Module;
-use burn::tensor::{Device, Tensor, TensorData};
+use burn::tensor::Device;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -98,10 +97,10 @@ fn ramp(i: usize, len: usize, start: usize, n: usize, o: usize) -> f32 {
     w.max(1e-3)
 }
 
-/// Runs `net` on one interleaved 8-bit RGB frame, whole or in blended tiles. Tiles run on
-/// all cores (burn's CPU backend runs one forward pass on one core); they are blended in a
-/// fixed order, so the result does not depend on the number of threads.
-pub fn run_frame(net: &Net, rgb: &[u8], w: usize, h: usize, tiling: Tiling, device: &Device) -> Vec<u8> {
+/// Runs `net` on one interleaved 8-bit RGB frame, whole or in blended tiles. Each tile's
+/// forward pass runs on all cores; tiles only bound the memory, and are blended in a fixed
+/// order, so the result does not depend on the number of threads.
+pub fn run_frame(net: &FastNet, rgb: &[u8], w: usize, h: usize, tiling: Tiling) -> Vec<u8> {
     let (t, o) = (tiling.tile.max(16), tiling.overlap.min(tiling.tile / 2));
     let ((tw, xs), (th, ys)) = (tiles_1d(w, t, o), tiles_1d(h, t, o));
     let tiles: Vec<(usize, usize)> = ys.iter().flat_map(|&y0| xs.iter().map(move |&x0| (x0, y0))).collect();
@@ -114,33 +113,9 @@ pub fn run_frame(net: &Net, rgb: &[u8], w: usize, h: usize, tiling: Tiling, devi
                 }
             }
         }
-        net.forward(Tensor::<4>::from_data(TensorData::new(v, [1, 3, th, tw]), device)).into_data().try_to_vec::<f32>().expect("f32")
+        net.forward(&T4::new(1, 3, th, tw, v)).d
     };
-    let workers = std::thread::available_parallelism().map_or(1, |n| n.get()).min(tiles.len());
-    let outs: Vec<Vec<f32>> = if workers <= 1 {
-        tiles.iter().map(forward).collect()
-    } else {
-        let next = std::sync::atomic::AtomicUsize::new(0);
-        let mut done: Vec<(usize, Vec<f32>)> = std::thread::scope(|s| {
-            let hs: Vec<_> = (0..workers)
-                .map(|_| {
-                    s.spawn(|| {
-                        let mut mine = Vec::new();
-                        loop {
-                            let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-                            if i >= tiles.len() {
-                                return mine;
-                            }
-                            mine.push((i, forward(&tiles[i])));
-                        }
-                    })
-                })
-                .collect();
-            hs.into_iter().flat_map(|h| h.join().expect("tile worker")).collect()
-        });
-        done.sort_by_key(|(i, _)| *i);
-        done.into_iter().map(|(_, v)| v).collect()
-    };
+    let outs: Vec<Vec<f32>> = tiles.iter().map(forward).collect();
     let mut acc = vec![0.0f32; w * h * 3];
     let mut wsum = vec![0.0f32; w * h];
     for (&(x0, y0), out) in tiles.iter().zip(&outs) {
@@ -224,7 +199,7 @@ fn temp_for(path: &Path) -> PathBuf {
 /// output path on failure.
 #[cfg(feature = "ffmpeg")]
 pub fn video(
-    net: &Net,
+    net: &FastNet,
     model_name: &str,
     input: &Path,
     output: &Path,
@@ -242,12 +217,11 @@ pub fn video(
     }
     let tmp = temp_for(output);
     let mut writer = VideoWriter::create(&tmp, w, h, reader.rate, lossless).map_err(|e| name(output, e))?;
-    let device = Device::flex();
     let bar = progress.then(|| progress_bar(reader.info.frames_announced.unwrap_or(0)));
     let result = (|| -> Result<u64> {
         while let Some(f) = reader.next_frame().map_err(|e| name(input, e))? {
             let rgb = to_rgb8(&f, reader.float);
-            let out = run_frame(net, &rgb, w, h, tiling, &device);
+            let out = run_frame(net, &rgb, w, h, tiling);
             writer.write_rgb8(&out).map_err(|e| name(output, e))?;
             if let Some(b) = &bar {
                 b.inc(1);
@@ -351,18 +325,17 @@ fn write_image(dst: &Path, ext: &str, w: usize, h: usize, rgb: &[u8]) -> Result<
 ///
 /// # Errors
 /// An unreadable image (named), an unwritable output.
-pub fn images(net: &Net, model_name: &str, input: &Path, output: &Path, tiling: Tiling, progress: bool) -> Result<DeblurReport> {
+pub fn images(net: &FastNet, model_name: &str, input: &Path, output: &Path, tiling: Tiling, progress: bool) -> Result<DeblurReport> {
     let t0 = Instant::now();
     let files = crate::config::expand_paths(&[input.display().to_string()], &IMAGE_EXTENSIONS)?;
     std::fs::create_dir_all(output).map_err(|e| Error::Io { path: output.to_path_buf(), source: e })?;
-    let device = Device::flex();
     let bar = progress.then(|| progress_bar(files.len() as u64));
     let (mut w, mut h) = (0, 0);
     for f in &files {
         let ext = f.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
         let (fw, fh, rgb) = read_image(f, &ext)?;
         (w, h) = (fw, fh);
-        let out = run_frame(net, &rgb, fw, fh, tiling, &device);
+        let out = run_frame(net, &rgb, fw, fh, tiling);
         write_image(&output.join(f.file_name().expect("a file")), &ext, fw, fh, &out)?;
         if let Some(b) = &bar {
             b.inc(1);
@@ -385,12 +358,14 @@ fn progress_bar(len: u64) -> indicatif::ProgressBar {
 ///
 /// # Errors
 /// As [`crate::train::load_model`].
-pub fn load(model: Option<&Path>, device: &Device) -> Result<(Net, String)> {
-    match model {
-        Some(p) => crate::train::load_model(p, device).map(|(n, a)| (n.valid(), format!("{} ({})", p.display(), a.name()))),
-        None => crate::train::load_model_bytes(DEFAULT_MODEL, "embedded models/shallow32-coded", device)
-            .map(|(n, a)| (n.valid(), format!("models/shallow32-coded ({})", a.name()))),
-    }
+pub fn load(model: Option<&Path>) -> Result<(FastNet, String)> {
+    let device = Device::flex();
+    let (net, name) = match model {
+        Some(p) => crate::train::load_model(p, &device).map(|(n, a)| (n, format!("{} ({})", p.display(), a.name())))?,
+        None => crate::train::load_model_bytes(DEFAULT_MODEL, "embedded models/shallow32-coded", &device)
+            .map(|(n, a)| (n, format!("models/shallow32-coded ({})", a.name())))?,
+    };
+    Ok((FastNet::from_net(&net), name))
 }
 
 /// Writes the report beside the output.

@@ -13,7 +13,7 @@ use crate::frame::Frame;
 use crate::io::video::VideoReader;
 use crate::io::write_atomic;
 use crate::metrics::{quality, Quality};
-use crate::model::Net;
+use crate::model::fast::FastNet;
 use crate::optics::config::Checker;
 use crate::optics::transfer::{Curve, Encoder};
 use crate::optics::{Camera, CameraConfig, ConfigError, OpticsConfig};
@@ -248,7 +248,7 @@ fn read_frames(path: &Path, first: u64, last: u64, curve: Curve) -> Result<Vec<A
 /// # Errors
 /// A video that cannot be read or is too short for one window of the longest length (named),
 /// an output that cannot be written.
-pub fn run(f: &EvalFile, net: &Net, model: &str, videos: &[String], out: &Path, progress: bool) -> Result<EvalReport> {
+pub fn run(f: &EvalFile, net: &FastNet, model: &str, videos: &[String], out: &Path, progress: bool) -> Result<EvalReport> {
     let t0 = Instant::now();
     let e = &f.eval;
     let paths = expand_paths(videos, crate::graph::VIDEO_EXTS)?;
@@ -261,7 +261,6 @@ pub fn run(f: &EvalFile, net: &Net, model: &str, videos: &[String], out: &Path, 
     let mut blurrers =
         e.windows.iter().map(|&n| Blurrer::new(camera.clone(), n, e.threads, e.rank_tolerance)).collect::<Result<Vec<_>>>()?;
     let enc = Encoder::new(e.curve);
-    let device = burn::tensor::Device::flex();
     let tiling = Tiling { tile: e.tile, overlap: e.overlap };
     let total = (paths.len() * e.windows_per_video * e.windows.len() * e.sigmas.len()) as u64;
     let bar = progress.then(|| {
@@ -302,7 +301,7 @@ pub fn run(f: &EvalFile, net: &Net, model: &str, videos: &[String], out: &Path, 
                 let key = hash(&[f.seed, vi as u64, first + c, n as u64, hash_str("eval-noise")]);
                 for &sigma in &e.sigmas {
                     let blurred = quantise(&blur, rw, rh, rx, ry, &enc, sigma * sigma_scale, key);
-                    let deblurred = run_frame(net, &blurred, rw, rh, tiling, &device);
+                    let deblurred = run_frame(net, &blurred, rw, rh, tiling);
                     let (qb, qd) = (quality(&blurred, &sharp, rw, rh), quality(&deblurred, &sharp, rw, rh));
                     let example = (examples_left > 0 && sigma == top_sigma).then(|| {
                         examples_left -= 1;

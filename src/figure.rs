@@ -351,12 +351,12 @@ fn spoke(o: &FigureOptions, out: &Path) -> Result<Vec<Score>> {
     let frames = s.render();
     let sharp = encode(&s.render_at(0.0), w, h);
     let device = burn::tensor::Device::flex();
-    let model = |name: &str| -> Result<crate::model::Net> {
+    let model = |name: &str| -> Result<crate::model::fast::FastNet> {
         let p = o.models.join(name).join("model.safetensors");
         if !p.exists() {
             return Err(Error::Invalid(format!("{}: no such model (run from the repository or pass --models DIR)", p.display())));
         }
-        Ok(burn::module::Module::valid(&crate::train::load_model(&p, &device)?.0))
+        Ok(crate::model::fast::FastNet::from_net(&crate::train::load_model(&p, &device)?.0))
     };
     let d = crate::deblur::DeblurConfig::default();
     let tiling = crate::deblur::Tiling { tile: d.tile, overlap: d.overlap };
@@ -370,9 +370,9 @@ fn spoke(o: &FigureOptions, out: &Path) -> Result<Vec<Score>> {
         let (img, sigma) = capture(&frames, w, h, &cam, o.sigma, key)?;
         let (method, rec) = match kind {
             CameraKind::Conventional => {
-                ("U-Net 16 (conventional)", crate::deblur::run_frame(&model("unet16-conventional")?, &img, w, h, tiling, &device))
+                ("U-Net 16 (conventional)", crate::deblur::run_frame(&model("unet16-conventional")?, &img, w, h, tiling))
             }
-            CameraKind::PhaseCoded => ("U-Net 16 (coded)", crate::deblur::run_frame(&model("unet16-coded")?, &img, w, h, tiling, &device)),
+            CameraKind::PhaseCoded => ("U-Net 16 (coded)", crate::deblur::run_frame(&model("unet16-coded")?, &img, w, h, tiling)),
             CameraKind::Flutter => {
                 // The code for motion to the right over the rim's extent, as in the paper.
                 let solver = FlutterSolver::new(w, &cam.weights(o.frames), o.travel_px, Ends::Extend, o.flutter_lambda);

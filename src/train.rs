@@ -8,6 +8,7 @@
 
 use crate::io::{png as png_io, tar, write_atomic};
 use crate::metrics;
+use crate::model::fast::{self, Adam, FastNet, T4};
 use crate::model::{Arch, Net};
 use crate::rng::{hash, hash_str, unit, Rng};
 use crate::{Error, Result};
@@ -15,7 +16,7 @@ use burn::module::{Module, ModuleMapper, ModuleVisitor, Param, ParamId};
 use burn::nn::loss::{HuberLossConfig, Reduction};
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::store::{ModuleSnapshot, SafetensorsStore};
-use burn::tensor::{Device, Tensor, TensorData};
+use burn::tensor::{Device, Tensor};
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -65,6 +66,20 @@ pub struct OptimConfig {
     /// Start from the identity: the last layer zeroed, so the residual passes the input.
     #[serde(default = "d_true")]
     pub zero_init: bool,
+    /// `fast`: the CPU path of `src/model/fast.rs` (im2col + gemm on all cores); `burn`: burn's
+    /// autodiff on its flex CPU backend (the reference; with the `wgpu`/`cuda` features the
+    /// path a GPU build takes).
+    #[serde(default)]
+    pub engine: EngineKind,
+}
+
+/// Which implementation runs a training step.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EngineKind {
+    #[default]
+    Fast,
+    Burn,
 }
 
 impl Default for OptimConfig {
@@ -78,6 +93,7 @@ impl Default for OptimConfig {
             lr_min_factor: d_lr_min(),
             huber_delta: d_delta(),
             zero_init: true,
+            engine: EngineKind::Fast,
         }
     }
 }
@@ -366,6 +382,11 @@ impl Stream {
 }
 
 fn to_tensor(imgs: &[&[u8]], w: usize, h: usize, device: &Device) -> Tensor<4> {
+    to_t4(imgs, w, h).to_tensor(device)
+}
+
+/// `[n, 3, h, w]` values in [0, 1] from 8-bit interleaved RGB images.
+pub fn to_t4(imgs: &[&[u8]], w: usize, h: usize) -> T4 {
     let n = imgs.len();
     let mut v = vec![0.0f32; n * 3 * h * w];
     for (b, img) in imgs.iter().enumerate() {
@@ -375,13 +396,17 @@ fn to_tensor(imgs: &[&[u8]], w: usize, h: usize, device: &Device) -> Tensor<4> {
             }
         }
     }
-    Tensor::<4>::from_data(TensorData::new(v, [n, 3, h, w]), device)
+    T4::new(n, 3, h, w, v)
 }
 
 /// 8-bit interleaved RGB images from a `[n, 3, h, w]` tensor of values in [0, 1].
 pub fn from_tensor(t: Tensor<4>) -> Vec<Vec<u8>> {
-    let [n, _, h, w] = t.dims();
-    let v = t.into_data().try_to_vec::<f32>().expect("f32 tensor");
+    from_t4(&T4::from_tensor(t))
+}
+
+/// 8-bit interleaved RGB images from `[n, 3, h, w]` values in [0, 1].
+pub fn from_t4(t: &T4) -> Vec<Vec<u8>> {
+    let (n, h, w, v) = (t.n, t.h, t.w, &t.d);
     (0..n)
         .map(|b| {
             let mut img = vec![0u8; h * w * 3];
@@ -397,11 +422,19 @@ pub fn from_tensor(t: Tensor<4>) -> Vec<Vec<u8>> {
 
 /// Mean quality of a model's outputs on validation pairs, and of the inputs themselves.
 pub fn evaluate(model: &Net, val: &[Pair], device: &Device) -> (metrics::Quality, metrics::Quality) {
+    evaluate_with(val, |x, w, h| from_tensor(model.forward(to_tensor(x, w, h, device))))
+}
+
+/// [`evaluate`] with the CPU fast path.
+pub fn evaluate_fast(model: &FastNet, val: &[Pair]) -> (metrics::Quality, metrics::Quality) {
+    evaluate_with(val, |x, w, h| from_t4(&model.forward(&to_t4(x, w, h))))
+}
+
+fn evaluate_with(val: &[Pair], forward: impl Fn(&[&[u8]], usize, usize) -> Vec<Vec<u8>>) -> (metrics::Quality, metrics::Quality) {
     let mut sums = [[0.0f64; 4]; 2];
     for chunk in val.chunks(8) {
         let (w, h) = (chunk[0].w, chunk[0].h);
-        let x = to_tensor(&chunk.iter().map(|p| p.lq.as_slice()).collect::<Vec<_>>(), w, h, device);
-        let outs = from_tensor(model.forward(x));
+        let outs = forward(&chunk.iter().map(|p| p.lq.as_slice()).collect::<Vec<_>>(), w, h);
         for (p, o) in chunk.iter().zip(outs) {
             for (k, img) in [o.as_slice(), p.lq.as_slice()].iter().enumerate() {
                 let q = metrics::quality(img, &p.gt, w, h);
@@ -568,15 +601,70 @@ pub struct TrainOptions {
     pub stop_after: Option<usize>,
 }
 
+/// A model and its optimizer state, in one of the two implementations.
+enum Engine {
+    /// burn's autodiff (the reference path; the GPU path with the `wgpu`/`cuda` features).
+    Burn { device: Device, model: Net, optim: burn::optim::ModuleOptimizer, huber: burn::nn::loss::HuberLoss },
+    /// `src/model/fast.rs`; `template` carries the parameter ids the checkpoints are written with.
+    Fast { net: Box<FastNet>, adam: Adam, template: Net },
+}
+
+impl Engine {
+    /// One optimisation step; returns the loss before it.
+    fn step(&mut self, x: &T4, y: &T4, lr: f64, delta: f64) -> f64 {
+        match self {
+            Engine::Burn { device, model, optim, huber } => {
+                let loss = huber.forward(model.forward(x.to_tensor(device)), y.to_tensor(device), Reduction::Mean);
+                let lv = loss.clone().into_scalar::<f32>() as f64;
+                if lv.is_finite() {
+                    let grads = GradientsParams::from_grads(loss.backward(), model);
+                    // The module holds tensor handles: cloning it is cheap.
+                    *model = optim.step(lr, model.clone(), grads);
+                }
+                lv
+            }
+            Engine::Fast { net, adam, .. } => {
+                net.zero_grad();
+                let out = net.forward_train(x);
+                let (lv, dout) = fast::huber(&out, y, delta as f32);
+                if lv.is_finite() {
+                    net.backward(&dout);
+                    adam.step(net, lr as f32);
+                }
+                lv
+            }
+        }
+    }
+
+    /// The network as a burn module on the CPU (for checkpoints and reports).
+    fn net(&self) -> Net {
+        match self {
+            Engine::Burn { model, .. } => model.valid(),
+            Engine::Fast { net, template, .. } => net.write_into(template.clone()),
+        }
+    }
+
+    fn optim_bytes(&self) -> Result<Vec<u8>> {
+        match self {
+            Engine::Burn { optim, .. } => Ok(optim.clone().into_bytes().map_err(|e| Error::Invalid(format!("optimizer state: {e:?}")))?.to_vec()),
+            Engine::Fast { adam, .. } => Ok(adam.to_bytes()),
+        }
+    }
+
+    fn evaluate(&self, val: &[Pair]) -> (metrics::Quality, metrics::Quality) {
+        match self {
+            Engine::Burn { model, device, .. } => evaluate(&model.valid(), val, &device.clone().inner()),
+            Engine::Fast { net, .. } => evaluate_fast(net, val),
+        }
+    }
+}
+
 /// The training state: model, optimizer, schedule, history. Fed batches by [`train`] (from
 /// shards) or by the `trainer` sink (straight from the generator).
 pub struct Trainer {
     pub cfg: TrainConfig,
     dir: PathBuf,
-    device: Device,
-    model: Net,
-    optim: burn::optim::ModuleOptimizer,
-    huber: burn::nn::loss::HuberLoss,
+    engine: Engine,
     pub step: usize,
     start: usize,
     end: usize,
@@ -603,13 +691,14 @@ impl Trainer {
         }
         let dir = PathBuf::from(&cfg.output.dir);
         std::fs::create_dir_all(&dir).map_err(|e| Error::Io { path: dir.clone(), source: e })?;
-        let device = Device::flex().autodiff();
+        let fast = cfg.optim.engine == EngineKind::Fast;
+        let device = if fast { Device::flex() } else { Device::flex().autodiff() };
         // Initial weights are a function of the config's seed alone.
         let mut model = Net::seeded(cfg.model, &device, hash(&[cfg.seed, hash_str("init")]));
         if cfg.optim.zero_init {
             model = model.zero_last_layer(&device);
         }
-        let mut optim = AdamConfig::new().init();
+        let mut optim_bytes = None;
         let mut start = 0;
         if opts.resume {
             let lp = dir.join("latest.json");
@@ -623,13 +712,27 @@ impl Trainer {
                 .and_then(|m| m["param_ids"].as_str().and_then(|s| serde_json::from_str(s).ok()))
                 .ok_or_else(|| Error::Invalid(format!("{}: no param_ids in the metadata; cannot resume the optimizer", mpath.display())))?;
             model = net.map(&mut IdSetter { ids, next: 0 });
-            let ob = std::fs::read(dir.join(&latest.optimizer)).map_err(|e| Error::Io { path: dir.join(&latest.optimizer), source: e })?;
-            optim = AdamConfig::new()
-                .init()
-                .from_bytes(burn::tensor::Bytes::from_bytes_vec(ob))
-                .map_err(|e| Error::Invalid(format!("{}: {e:?}", latest.optimizer)))?;
+            let op = dir.join(&latest.optimizer);
+            optim_bytes = Some((op.clone(), std::fs::read(&op).map_err(|e| Error::Io { path: op, source: e })?));
             start = latest.step;
         }
+        let engine = if fast {
+            let adam = match optim_bytes {
+                Some((path, b)) => Adam::from_bytes(&b).map_err(|e| {
+                    Error::Invalid(format!("{}: {e} (a checkpoint of optim.engine = \"burn\" resumes with that engine)", path.display()))
+                })?,
+                None => Adam::default(),
+            };
+            Engine::Fast { net: Box::new(FastNet::from_net(&model)), adam, template: model }
+        } else {
+            let mut optim = AdamConfig::new().init();
+            if let Some((path, b)) = optim_bytes {
+                optim = optim.from_bytes(burn::tensor::Bytes::from_bytes_vec(b)).map_err(|e| {
+                    Error::Invalid(format!("{}: {e:?} (a checkpoint of optim.engine = \"fast\" resumes with that engine)", path.display()))
+                })?;
+            }
+            Engine::Burn { device, model, optim, huber: HuberLossConfig::new(cfg.optim.huber_delta as f32).init() }
+        };
         let end = opts.stop_after.unwrap_or(cfg.optim.steps).min(cfg.optim.steps);
         let bar = opts.progress.then(|| {
             let b = indicatif::ProgressBar::new(end.saturating_sub(start) as u64);
@@ -639,10 +742,7 @@ impl Trainer {
         Ok(Trainer {
             cfg: cfg.clone(),
             dir,
-            device,
-            model,
-            optim,
-            huber: HuberLossConfig::new(cfg.optim.huber_delta as f32).init(),
+            engine,
             step: start,
             start,
             end,
@@ -692,10 +792,10 @@ impl Trainer {
         };
         let lqs: Vec<Vec<u8>> = batch.iter().enumerate().map(|(i, p)| aug(&p.lq, i)).collect();
         let gts: Vec<Vec<u8>> = batch.iter().enumerate().map(|(i, p)| aug(&p.gt, i)).collect();
-        let x = to_tensor(&lqs.iter().map(|v| v.as_slice()).collect::<Vec<_>>(), w, h, &self.device);
-        let y = to_tensor(&gts.iter().map(|v| v.as_slice()).collect::<Vec<_>>(), w, h, &self.device);
-        let loss = self.huber.forward(self.model.forward(x), y, Reduction::Mean);
-        let lv: f64 = loss.clone().into_scalar::<f32>() as f64;
+        let x = to_t4(&lqs.iter().map(|v| v.as_slice()).collect::<Vec<_>>(), w, h);
+        let y = to_t4(&gts.iter().map(|v| v.as_slice()).collect::<Vec<_>>(), w, h);
+        let lr = cfg.lr_at(step);
+        let lv = self.engine.step(&x, &y, lr, cfg.optim.huber_delta);
         if !lv.is_finite() {
             return Err(Error::Invalid(format!(
                 "step {}: the loss is {lv}; stopped. The last good checkpoint is listed in {}",
@@ -703,20 +803,15 @@ impl Trainer {
                 self.dir.join("latest.json").display()
             )));
         }
-        let lr = cfg.lr_at(step);
-        let grads = GradientsParams::from_grads(loss.backward(), &self.model);
-        // The module holds tensor handles: cloning it is cheap.
-        self.model = self.optim.step(lr, self.model.clone(), grads);
         self.losses.push(LossPoint { step: step + 1, loss: lv, lr });
         self.step += 1;
         let done = self.step;
         if (done % cfg.validate.every == 0 || done == self.end) && !self.val.is_empty() {
-            let (m, i) = evaluate(&self.model.valid(), &self.val, &self.device.clone().inner());
+            let (m, i) = self.engine.evaluate(&self.val);
             self.vals.push(ValPoint { step: done, model: m, input: i });
         }
         if done % cfg.output.checkpoint_every == 0 || done == self.end {
-            let ob = self.optim.clone().into_bytes().map_err(|e| Error::Invalid(format!("optimizer state: {e:?}")))?.to_vec();
-            save_checkpoint(&self.dir, &self.model, ob, cfg, done)?;
+            save_checkpoint(&self.dir, &self.engine.net(), self.engine.optim_bytes()?, cfg, done)?;
         }
         let rate = ((done - self.start) * batch.len()) as f64 / self.t_train.elapsed().as_secs_f64();
         let msg = format!(
@@ -748,7 +843,7 @@ impl Trainer {
         let report = TrainReport {
             version: env!("CARGO_PKG_VERSION"),
             arch: self.cfg.model.name(),
-            parameters: self.model.num_params(),
+            parameters: self.engine.net().num_params(),
             steps: self.step,
             resumed_from: resumed.then_some(self.start),
             seconds: self.t0.elapsed().as_secs_f64(),

@@ -12,6 +12,8 @@
 //! Images are `[batch, 3, h, w]`, encoded sRGB values in [0, 1]. Any size works: the U-Net pads
 //! to a multiple of 16 (edge replication) and crops back.
 
+pub mod fast;
+
 use burn::module::Module;
 use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfig};
 use burn::nn::pool::{MaxPool2d, MaxPool2dConfig};
