@@ -61,6 +61,9 @@ pub struct StillsConfig {
     pub layers: usize,
     /// Largest layer speed, pixels per frame.
     pub layer_speed_px: f64,
+    /// Largest steady camera (pan) speed, pixels per frame: each clip draws a speed uniformly
+    /// from [0, this] in a random direction, on top of the shake (0: shake only).
+    pub pan_px: f64,
 }
 
 impl Default for StillsConfig {
@@ -74,6 +77,7 @@ impl Default for StillsConfig {
             shake_px: 0.15,
             layers: 3,
             layer_speed_px: 2.0,
+            pan_px: 0.0,
         }
     }
 }
@@ -558,6 +562,7 @@ fn check_source(name: &str, s: &SourceConfig) -> Vec<ConfigError> {
             c.range("shake_px", st.shake_px, 0.0, 50.0);
             c.range_usize("layers", st.layers, 0, 64);
             c.range("layer_speed_px", st.layer_speed_px, 0.0, 100.0);
+            c.range("pan_px", st.pan_px, 0.0, 100.0);
             if st.paths.is_empty() {
                 c.range_usize("clips", st.clips, 1, 100_000);
                 for (i, v) in st.size.iter().enumerate() {

@@ -15,7 +15,7 @@
 pub const CONVENTION: &str = "8-bit sRGB, data range 255, crop_border 0; SSIM 11x11 Gaussian sigma 1.5, K1 0.01, K2 0.03, valid region, channel mean; Y = BT.601 luma (BasicSR rgb2ycbcr)";
 
 /// PSNR / SSIM on RGB and on Y.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct Quality {
     pub psnr_rgb: f64,
     pub ssim_rgb: f64,

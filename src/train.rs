@@ -458,14 +458,14 @@ pub struct Latest {
     pub optimizer: String,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct LossPoint {
     pub step: usize,
     pub loss: f64,
     pub lr: f64,
 }
 
-#[derive(Debug, Clone, Serialize)]
+#[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct ValPoint {
     pub step: usize,
     pub model: metrics::Quality,
@@ -700,6 +700,7 @@ impl Trainer {
         }
         let mut optim_bytes = None;
         let mut start = 0;
+        let mut history: (Vec<LossPoint>, Vec<ValPoint>) = (Vec::new(), Vec::new());
         if opts.resume {
             let lp = dir.join("latest.json");
             let latest: Latest = serde_json::from_slice(&std::fs::read(&lp).map_err(|e| Error::Io { path: lp.clone(), source: e })?)
@@ -715,6 +716,18 @@ impl Trainer {
             let op = dir.join(&latest.optimizer);
             optim_bytes = Some((op.clone(), std::fs::read(&op).map_err(|e| Error::Io { path: op, source: e })?));
             start = latest.step;
+            // The history of the steps before the checkpoint, from the report of the run that
+            // wrote it (a run stopped before writing one resumes without it).
+            if let Ok(b) = std::fs::read(dir.join("report.json")) {
+                if let Ok(v) = serde_json::from_slice::<serde_json::Value>(&b) {
+                    let keep = |p: &serde_json::Value| p["step"].as_u64().is_some_and(|s| s as usize <= start);
+                    let take = |k: &str| v[k].as_array().map(|a| a.iter().filter(|p| keep(p)).cloned().collect::<Vec<_>>()).unwrap_or_default();
+                    history = (
+                        take("loss").into_iter().filter_map(|p| serde_json::from_value(p).ok()).collect(),
+                        take("validation").into_iter().filter_map(|p| serde_json::from_value(p).ok()).collect(),
+                    );
+                }
+            }
         }
         let engine = if fast {
             let adam = match optim_bytes {
@@ -736,7 +749,7 @@ impl Trainer {
         let end = opts.stop_after.unwrap_or(cfg.optim.steps).min(cfg.optim.steps);
         let bar = opts.progress.then(|| {
             let b = indicatif::ProgressBar::new(end.saturating_sub(start) as u64);
-            b.set_style(indicatif::ProgressStyle::with_template("train {bar:30} {pos}/{len} {msg}").expect("template"));
+            b.set_style(indicatif::ProgressStyle::with_template("train {bar:30} {pos}/{len} steps, eta {eta} {msg}").expect("template"));
             b
         });
         Ok(Trainer {
@@ -749,8 +762,8 @@ impl Trainer {
             val: Vec::new(),
             train_inputs: Default::default(),
             val_inputs: Default::default(),
-            losses: Vec::new(),
-            vals: Vec::new(),
+            losses: history.0,
+            vals: history.1,
             t0: Instant::now(),
             t_train: Instant::now(),
             last_line: Instant::now(),
@@ -812,6 +825,7 @@ impl Trainer {
         }
         if done % cfg.output.checkpoint_every == 0 || done == self.end {
             save_checkpoint(&self.dir, &self.engine.net(), self.engine.optim_bytes()?, cfg, done)?;
+            self.write_report()?;
         }
         let rate = ((done - self.start) * batch.len()) as f64 / self.t_train.elapsed().as_secs_f64();
         let msg = format!(
@@ -832,35 +846,62 @@ impl Trainer {
         Ok(())
     }
 
-    /// Writes `report.json` and `curves.png`.
-    ///
-    /// # Errors
-    /// They cannot be written.
-    pub fn finish(self, resumed: bool) -> Result<TrainReport> {
-        if let Some(b) = &self.bar {
-            b.finish();
-        }
-        let report = TrainReport {
+    /// The report of the run so far.
+    fn report(&self) -> TrainReport {
+        TrainReport {
             version: env!("CARGO_PKG_VERSION"),
             arch: self.cfg.model.name(),
             parameters: self.engine.net().num_params(),
             steps: self.step,
-            resumed_from: resumed.then_some(self.start),
+            resumed_from: (self.start > 0).then_some(self.start),
             seconds: self.t0.elapsed().as_secs_f64(),
             patches_per_s: ((self.step - self.start) * self.cfg.optim.batch) as f64 / self.t_train.elapsed().as_secs_f64().max(1e-9),
-            train_inputs: self.train_inputs.into_iter().collect(),
-            val_inputs: self.val_inputs.into_iter().collect(),
+            train_inputs: self.train_inputs.iter().copied().collect(),
+            val_inputs: self.val_inputs.iter().copied().collect(),
             val_samples: self.val.len(),
             metrics_convention: metrics::CONVENTION,
-            loss: self.losses,
-            validation: self.vals,
+            loss: self.losses.clone(),
+            validation: self.vals.clone(),
             config: self.cfg.clone(),
-        };
+        }
+    }
+
+    /// `report.json`, `history.csv` and `curves.png` of the run so far (the whole history,
+    /// resumed parts included).
+    fn write_report(&self) -> Result<TrainReport> {
+        let report = self.report();
         let bytes = serde_json::to_vec_pretty(&report).expect("json");
         write_atomic(&self.dir.join("report.json"), |w| w.write_all(&bytes))?;
+        write_atomic(&self.dir.join("history.csv"), |w| w.write_all(history_csv(&report).as_bytes()))?;
         crate::plot::training_curves(&self.dir.join("curves.png"), &report)?;
         Ok(report)
     }
+
+    /// Writes `report.json`, `history.csv` and `curves.png`.
+    ///
+    /// # Errors
+    /// They cannot be written.
+    pub fn finish(self, _resumed: bool) -> Result<TrainReport> {
+        if let Some(b) = &self.bar {
+            b.finish();
+        }
+        self.write_report()
+    }
+}
+
+/// The scalars of a run, one row per step: step, lr, loss, then (at validation steps) the model's
+/// and the input's PSNR/SSIM on RGB (8-bit, BasicSR's convention).
+pub fn history_csv(r: &TrainReport) -> String {
+    let mut s = String::from("step,lr,loss,val_psnr_rgb,val_ssim_rgb,input_psnr_rgb,input_ssim_rgb\n");
+    let vals: std::collections::BTreeMap<usize, &ValPoint> = r.validation.iter().map(|v| (v.step, v)).collect();
+    for p in &r.loss {
+        s += &format!("{},{:e},{:e}", p.step, p.lr, p.loss);
+        match vals.get(&p.step) {
+            Some(v) => s += &format!(",{:.4},{:.5},{:.4},{:.5}\n", v.model.psnr_rgb, v.model.ssim_rgb, v.input.psnr_rgb, v.input.ssim_rgb),
+            None => s += ",,,,\n",
+        }
+    }
+    s
 }
 
 /// Runs training from shards.

@@ -213,6 +213,12 @@ impl Stills {
             })
             .collect();
         let (mut cam, mut vel) = ((0.0f64, 0.0f64), (rng.normal() * self.cfg.shake_px * 2.0, rng.normal() * self.cfg.shake_px * 2.0));
+        if self.cfg.pan_px > 0.0 {
+            // A steady pan of random direction and speed (drawn after the layers, so configs
+            // without a pan render as before).
+            let (speed, ang) = (rng.range(0.0, self.cfg.pan_px), rng.range(0.0, std::f64::consts::TAU));
+            vel = (vel.0 + speed * ang.cos(), vel.1 + speed * ang.sin());
+        }
         let mut frames = Vec::with_capacity(self.cfg.frames as usize);
         for f in 0..self.cfg.frames {
             let mut planes: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0f32; w * h]);

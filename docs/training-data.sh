@@ -1,0 +1,42 @@
+#!/usr/bin/env bash
+# Makes the training photos, the held-out test clips and the training shards of the shipped
+# models (models/README.md). Needs: ffmpeg, the Debian package mate-backgrounds (GPL-2+ photos),
+# and scikit-image's sample photos (public domain / CC0; `pip install scikit-image`).
+#   bash docs/training-data.sh [SKIMAGE_DATA_DIR] [OUT=data]
+set -euo pipefail
+SK=${1:-$(python3 -c 'import skimage.data, os; print(os.path.dirname(skimage.data.__file__))')}
+OUT=${2:-data}
+BG=/usr/share/backgrounds/mate/nature
+PIPELINE=${PIPELINE:-target/release/pipeline}
+mkdir -p "$OUT/photos/train" "$OUT/test"
+# Held apart by source photo, never by patch: Storm, YellowFlower, Wood and coffee are test only.
+TRAIN=("$BG/Aqua.jpg" "$BG/Blinds.jpg" "$BG/Dune.jpg" "$BG/FreshFlower.jpg" "$BG/Garden.jpg" "$BG/GreenMeadow.jpg"
+       "$BG/LadyBird.jpg" "$BG/RainDrops.jpg" "$BG/TwoWings.jpg" "$SK/astronaut.png" "$SK/chelsea.png" "$SK/rocket.jpg")
+TEST=("$BG/Storm.jpg" "$BG/YellowFlower.jpg" "$BG/Wood.jpg" "$SK/coffee.png")
+# Ten 384x288 crops per training photo, at 720p scale (short side 720, or the photo's own if smaller).
+for f in "${TRAIN[@]}"; do
+  b=$(basename "${f%.*}")
+  for i in 0 1 2 3 4 5 6 7 8 9; do
+    fx=$(( (i * 37) % 10 )); fy=$(( (i * 53) % 10 ))
+    ffmpeg -v error -y -i "$f" -vf "scale=-2:'min(720,ih)',crop=384:288:(iw-384)*$fx/9:(ih-288)*$fy/9" -frames:v 1 "$OUT/photos/train/${b}_$i.png"
+  done
+done
+# Test clips: each held-out photo panned by the camera at 240 fps (real photographs, real
+# FFmpeg-encoded video; 1 to 5 px per frame in four directions).
+k=0
+for f in "${TEST[@]}"; do
+  b=$(basename "${f%.*}")
+  case $k in
+    0) X='100+3*n'; Y='60+1*n' ;;
+    1) X='400-2*n'; Y='80+2*n' ;;
+    2) X='200+5*n'; Y='150' ;;
+    *) X='120+1*n'; Y='200-3*n' ;;
+  esac
+  ffmpeg -v error -y -loop 1 -i "$f" -vf "scale=-2:'min(720,ih)',crop=320:240:'$X':'$Y',format=yuv420p" -r 240 -frames:v 60 \
+    -c:v libx264 -crf 12 "$OUT/test/$b-pan-240fps.mp4"
+  k=$((k + 1))
+done
+# Training shards: the same clips through the coded and the conventional camera.
+"$PIPELINE" run pipelines/train-data.toml -o "$OUT/coded" --set "sources.stills.paths=[\"$OUT/photos/train\"]"
+"$PIPELINE" run pipelines/train-data.toml -o "$OUT/conventional" --set "sources.stills.paths=[\"$OUT/photos/train\"]" \
+  --set transforms.blur.camera.type=conventional
