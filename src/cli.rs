@@ -72,7 +72,7 @@ pub enum Command {
         /// A model written by `pipeline train`; default: the shipped shallow model (coded camera).
         #[arg(long)]
         model: Option<PathBuf>,
-        /// Tile size in pixels (frames are processed in tiles with blended seams); default 384.
+        /// Tile size in pixels (frames are processed in tiles with blended seams); default 1280 (a 720p frame in one pass; smaller tiles use less memory).
         #[arg(long)]
         tile: Option<usize>,
         /// Overlap between tiles in pixels; default 32.

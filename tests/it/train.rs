@@ -92,9 +92,18 @@ fn validation_is_held_apart_by_input_never_by_patch() {
 fn save_then_load_gives_identical_outputs_and_resume_matches_an_uninterrupted_run() {
     let shards = tiny_shards("train_resume_shards");
     let (a, b) = (scratch("train_resume_a"), scratch("train_resume_b"));
-    train(&config(&shards, &a, ""), &opts(Some(6), false)).unwrap();
+    let ra = train(&config(&shards, &a, ""), &opts(Some(6), false)).unwrap();
     train(&config(&shards, &b, ""), &opts(Some(3), false)).unwrap();
-    train(&config(&shards, &b, ""), &opts(Some(6), true)).unwrap();
+    let rb = train(&config(&shards, &b, ""), &opts(Some(6), true)).unwrap();
+    // The resumed run's report keeps the whole history, the same as the uninterrupted one's.
+    let steps = |r: &pipeline::train::TrainReport| r.loss.iter().map(|p| p.step).collect::<Vec<_>>();
+    assert_eq!(steps(&rb), vec![1, 2, 3, 4, 5, 6]);
+    for (p, q) in ra.loss.iter().zip(&rb.loss) {
+        assert!((p.loss - q.loss).abs() <= 1e-6 * p.loss.abs(), "step {}: {} vs {}", p.step, p.loss, q.loss);
+    }
+    let csv = std::fs::read_to_string(b.join("history.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 7, "header and six steps:\n{csv}");
+    assert!(csv.starts_with("step,lr,loss,"));
     let (oa, ob) = (outputs(&a.join("model-0000006.safetensors")), outputs(&b.join("model-0000006.safetensors")));
     let worst = oa.iter().zip(&ob).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
     assert!(worst < 1e-5, "resumed weights differ: {worst}");
