@@ -11,14 +11,17 @@ PIPELINE=${PIPELINE:-target/release/pipeline}
 mkdir -p "$OUT/photos/train" "$OUT/test"
 # Held apart by source photo, never by patch: Storm, YellowFlower, Wood and coffee are test only.
 TRAIN=("$BG/Aqua.jpg" "$BG/Blinds.jpg" "$BG/Dune.jpg" "$BG/FreshFlower.jpg" "$BG/Garden.jpg" "$BG/GreenMeadow.jpg"
-       "$BG/LadyBird.jpg" "$BG/RainDrops.jpg" "$BG/TwoWings.jpg" "$SK/astronaut.png" "$SK/chelsea.png" "$SK/rocket.jpg")
+       "$BG/LadyBird.jpg" "$BG/RainDrops.jpg" "$BG/TwoWings.jpg" "$SK/astronaut.png" "$SK/chelsea.png" "$SK/rocket.jpg"
+       "$SK/grass.png" "$SK/gravel.png" "$SK/brick.png")
 TEST=("$BG/Storm.jpg" "$BG/YellowFlower.jpg" "$BG/Wood.jpg" "$SK/coffee.png")
-# Ten 384x288 crops per training photo, at 720p scale (short side 720, or the photo's own if smaller).
+# Ten 384x288 crops per training photo: even ones at 720p scale (short side 720, or the photo's
+# own if smaller), odd ones at the photo's full resolution (finer texture per pixel).
 for f in "${TRAIN[@]}"; do
   b=$(basename "${f%.*}")
   for i in 0 1 2 3 4 5 6 7 8 9; do
     fx=$(( (i * 37) % 10 )); fy=$(( (i * 53) % 10 ))
-    ffmpeg -v error -y -i "$f" -vf "scale=-2:'min(720,ih)',crop=384:288:(iw-384)*$fx/9:(ih-288)*$fy/9" -frames:v 1 "$OUT/photos/train/${b}_$i.png"
+    scale="scale=-2:'min(720,ih)',"; [ $((i % 2)) -eq 1 ] && scale=""
+    ffmpeg -v error -y -i "$f" -vf "${scale}format=rgb24,crop=384:288:(iw-384)*$fx/9:(ih-288)*$fy/9" -frames:v 1 "$OUT/photos/train/${b}_$i.png"
   done
 done
 # Test clips: each held-out photo panned by the camera at 240 fps (real photographs, real
@@ -32,7 +35,7 @@ for f in "${TEST[@]}"; do
     2) X='200+5*n'; Y='150' ;;
     *) X='120+1*n'; Y='200-3*n' ;;
   esac
-  ffmpeg -v error -y -loop 1 -i "$f" -vf "scale=-2:'min(720,ih)',crop=320:240:'$X':'$Y',format=yuv420p" -r 240 -frames:v 60 \
+  ffmpeg -v error -y -loop 1 -framerate 240 -i "$f" -vf "scale=-2:'min(720,ih)',crop=320:240:'$X':'$Y',format=yuv420p" -r 240 -frames:v 60 \
     -c:v libx264 -crf 12 "$OUT/test/$b-pan-240fps.mp4"
   k=$((k + 1))
 done
