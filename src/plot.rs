@@ -105,9 +105,9 @@ fn fmt_tick(v: f64) -> String {
     }
 }
 
-/// Draws a panel of series into `canvas` at (ox, oy) of size (pw, ph), with a title and
-/// min/max labels on both axes.
-pub fn panel(canvas: &mut Canvas, (ox, oy, pw, ph): (usize, usize, usize, usize), title: &str, series: &[Series]) {
+/// Draws a panel of series into `canvas` at (ox, oy) of size (pw, ph), with a title (which names
+/// the y axis), min/max labels on both axes and `x_label` under the x axis.
+pub fn panel(canvas: &mut Canvas, (ox, oy, pw, ph): (usize, usize, usize, usize), title: &str, x_label: &str, series: &[Series]) {
     let fg = [0.9, 0.9, 0.9];
     let pts = series.iter().flat_map(|s| s.points.iter()).filter(|p| p.0.is_finite() && p.1.is_finite());
     let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
@@ -139,6 +139,7 @@ pub fn panel(canvas: &mut Canvas, (ox, oy, pw, ph): (usize, usize, usize, usize)
     canvas.text(left, bottom + 6, &fmt_tick(x0), fg);
     let xl = fmt_tick(x1);
     canvas.text(right.saturating_sub(font::text_width(&xl, 2)), bottom + 6, &xl, fg);
+    canvas.text((left + right) / 2 - font::text_width(x_label, 2) / 2, bottom + 6, x_label, fg);
     for (i, s) in series.iter().enumerate() {
         for w in s.points.windows(2) {
             canvas.line(to(w[0].0, w[0].1), to(w[1].0, w[1].1), s.color);
@@ -163,7 +164,7 @@ pub fn training_curves(path: &std::path::Path, r: &crate::train::TrainReport) ->
         points: r.loss.iter().map(|p| (p.step as f64, p.loss.max(1e-12).log10())).collect(),
         color: [0.95, 0.6, 0.2],
     };
-    panel(&mut c, (10, 10, 880, 300), &format!("TRAINING LOSS ({})", r.arch.to_uppercase()), &[loss]);
+    panel(&mut c, (10, 10, 880, 300), &format!("LOG10 TRAINING LOSS ({})", r.arch.to_uppercase()), "STEP", &[loss]);
     let model =
         Series { name: "MODEL", points: r.validation.iter().map(|v| (v.step as f64, v.model.psnr_rgb)).collect(), color: [0.3, 0.8, 0.4] };
     let input = Series {
@@ -171,6 +172,6 @@ pub fn training_curves(path: &std::path::Path, r: &crate::train::TrainReport) ->
         points: r.validation.iter().map(|v| (v.step as f64, v.input.psnr_rgb)).collect(),
         color: [0.6, 0.6, 0.9],
     };
-    panel(&mut c, (10, 330, 880, 300), "VALIDATION PSNR RGB (DB)", &[model, input]);
+    panel(&mut c, (10, 330, 880, 300), "VALIDATION PSNR RGB (DB)", "STEP", &[model, input]);
     c.save(path)
 }

@@ -572,6 +572,18 @@ pub fn load_model_bytes(bytes: &[u8], name: &str, device: &Device) -> Result<(Ne
             r.errors.len()
         )));
     }
+    // A model with NaN or infinite weights would write black frames: refuse it by name.
+    struct Finite(usize);
+    impl ModuleVisitor for Finite {
+        fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
+            self.0 += p.val().into_data().try_to_vec::<f32>().map_or(0, |v| v.iter().filter(|x| !x.is_finite()).count());
+        }
+    }
+    let mut bad = Finite(0);
+    net.visit(&mut bad);
+    if bad.0 > 0 {
+        return Err(Error::Invalid(format!("{}: {} weights are not finite (NaN or infinite); the model cannot be used", path.display(), bad.0)));
+    }
     Ok((net, arch))
 }
 
@@ -1083,6 +1095,28 @@ impl crate::stage::Sink for TrainerSink {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_model_with_non_finite_weights_is_refused_by_name() {
+        let dir = std::env::temp_dir().join(format!("pipeline-nan-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let cfg: TrainConfig = toml::from_str("[model]\ntype = \"shallow\"\nwidth = 4\n[data]\nshards = [\"x\"]\n[output]\ndir = \"x\"\n").unwrap();
+        let dev = Device::flex();
+        let net = Net::seeded(cfg.model, &dev, 1);
+        save_checkpoint(&dir, &net, Vec::new(), &cfg, 1).unwrap();
+        assert!(load_model(&dir.join("model-0000001.safetensors"), &dev).is_ok());
+        let mut f = FastNet::from_net(&net);
+        let mut first = true;
+        f.params(&mut |p, _| {
+            if std::mem::take(&mut first) {
+                p[0] = f32::NAN;
+            }
+        });
+        save_checkpoint(&dir, &f.write_into(net), Vec::new(), &cfg, 2).unwrap();
+        let e = load_model(&dir.join("model-0000002.safetensors"), &dev).err().expect("refused").to_string();
+        assert!(e.contains("model-0000002.safetensors") && e.contains("1 weights are not finite"), "{e}");
+        std::fs::remove_dir_all(&dir).ok();
+    }
 
     #[test]
     fn lr_warms_up_then_decays_by_cosine() {

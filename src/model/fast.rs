@@ -256,9 +256,10 @@ fn channel_sums(t: &T4) -> Vec<f32> {
         .collect()
 }
 
-/// Runs `f(channel, [planes of that channel, one per sample])` for every channel on all cores;
-/// `f` may write the planes of its own channel of `outs`.
-fn per_channel<R: Send>(n: usize, c: usize, hw: usize, outs: &mut [&mut T4], f: impl Fn(usize, &mut dyn FnMut(usize, usize) -> &'static mut [f32]) -> R + Sync) -> Vec<R> {
+/// Runs `f(channel, plane)` for every channel on all cores, where `plane(k, s)` is the plane of
+/// that channel in sample `s` of `outs[k]`: each call writes only its own channel's planes (the
+/// `'static` slices live as long as `outs`, which outlives the call).
+fn per_channel<R: Send>(c: usize, hw: usize, outs: &mut [&mut T4], f: impl Fn(usize, &mut dyn FnMut(usize, usize) -> &'static mut [f32]) -> R + Sync) -> Vec<R> {
     let ptrs: Vec<Ptr> = outs.iter_mut().map(|t| Ptr(t.d.as_mut_ptr())).collect();
     (0..c)
         .into_par_iter()
@@ -266,7 +267,6 @@ fn per_channel<R: Send>(n: usize, c: usize, hw: usize, outs: &mut [&mut T4], f: 
             let ptrs = &ptrs;
             // SAFETY: the planes of channel ch are written by this unit only.
             let mut plane = |which: usize, s: usize| -> &'static mut [f32] { unsafe { std::slice::from_raw_parts_mut(ptrs[which].0.add((s * c + ch) * hw), hw) } };
-            let _ = n;
             f(ch, &mut plane)
         })
         .collect()
@@ -408,7 +408,7 @@ impl ConvBnAct {
         let mut xhat = T4::zeros(n, c, z.h, z.w);
         let mut out = T4::zeros(n, c, z.h, z.w);
         let (gamma, beta, eps, slope) = (&self.gamma, &self.beta, self.eps as f64, self.slope);
-        let stats = per_channel(n, c, hw, &mut [&mut xhat, &mut out], |ch, plane| {
+        let stats = per_channel(c, hw, &mut [&mut xhat, &mut out], |ch, plane| {
             let zp = |s: usize| &z.d[(s * c + ch) * hw..][..hw];
             let mean = (0..n).map(|s| zp(s).iter().map(|&v| v as f64).sum::<f64>()).sum::<f64>() / m;
             let var = (0..n).map(|s| zp(s).iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>()).sum::<f64>() / m;
@@ -444,7 +444,7 @@ impl ConvBnAct {
         let m = (n * hw) as f64;
         let mut dz = T4::zeros(n, c, dout.h, dout.w);
         let (gamma, slope) = (&self.gamma, self.slope);
-        let sums = per_channel(n, c, hw, &mut [&mut dz], |ch, plane| {
+        let sums = per_channel(c, hw, &mut [&mut dz], |ch, plane| {
             let at = |s: usize| (s * c + ch) * hw;
             // dpre = dout * act'(pre); act'(pre) follows the sign of the output.
             let mut sb = 0.0f64;
