@@ -543,11 +543,20 @@ fn save_checkpoint(dir: &Path, model: &Net, optim_bytes: Vec<u8>, cfg: &TrainCon
     Ok(latest)
 }
 
-/// Loads a model file written by `pipeline train`, checking its architecture.
+/// Loads a model file written by `pipeline train` (or a model folder holding `model.safetensors`),
+/// checking its architecture and that every weight is finite.
 ///
 /// # Errors
 /// A missing or truncated file, or weights of another architecture (named).
 pub fn load_model(path: &Path, device: &Device) -> Result<(Net, Arch)> {
+    // A model folder (as shipped in models/) stands for its model.safetensors.
+    let file;
+    let path = if path.is_dir() {
+        file = path.join("model.safetensors");
+        file.as_path()
+    } else {
+        path
+    };
     let bytes = std::fs::read(path).map_err(|e| Error::Io { path: path.to_path_buf(), source: e })?;
     load_model_bytes(&bytes, &path.display().to_string(), device)
 }
