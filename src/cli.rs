@@ -229,8 +229,10 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u16).range(1..=100))]
         repeats: u16,
     },
-    /// Training step and forward speed per 128x128 patch of the shallow model and the U-Net,
-    /// beside PyTorch on the same architectures when torch is installed.
+    /// Training step and forward speed per 128x128 patch of shallow-32 and U-Net 16, 32 and 64
+    /// on the fast CPU path, beside PyTorch CPU on the same architectures with the same thread
+    /// count (RAYON_NUM_THREADS, else all cores) when torch is importable by python3 or by
+    /// $PIPELINE_PYTHON; prints each time ratio (ours / PyTorch's) and JSON on stdout.
     #[cfg(feature = "train")]
     Train {
         /// Patches per training step.
