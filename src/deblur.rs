@@ -328,6 +328,9 @@ fn write_image(dst: &Path, ext: &str, w: usize, h: usize, rgb: &[u8]) -> Result<
 pub fn images(net: &FastNet, model_name: &str, input: &Path, output: &Path, tiling: Tiling, progress: bool) -> Result<DeblurReport> {
     let t0 = Instant::now();
     let files = crate::config::expand_paths(&[input.display().to_string()], &IMAGE_EXTENSIONS)?;
+    if files.is_empty() {
+        return Err(Error::Usage(format!("{}: no image found ({})", input.display(), IMAGE_EXTENSIONS.join(", "))));
+    }
     std::fs::create_dir_all(output).map_err(|e| Error::Io { path: output.to_path_buf(), source: e })?;
     let bar = progress.then(|| progress_bar(files.len() as u64));
     let (mut w, mut h) = (0, 0);

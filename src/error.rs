@@ -16,6 +16,9 @@ pub enum Error {
     ConfigText(String),
     #[error("{0} input(s) failed; see report.json")]
     InputsFailed(usize),
+    /// The command as given cannot do anything (no input found, say): exit code 2.
+    #[error("{0}")]
+    Usage(String),
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;

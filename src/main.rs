@@ -7,7 +7,7 @@ fn main() {
     let cli = pipeline::cli::Cli::parse();
     if let Err(e) = pipeline::cli::run(cli) {
         let code = match e.downcast_ref::<pipeline::Error>() {
-            Some(pipeline::Error::Config(_) | pipeline::Error::ConfigText(_)) => 2,
+            Some(pipeline::Error::Config(_) | pipeline::Error::ConfigText(_) | pipeline::Error::Usage(_)) => 2,
             _ => 1,
         };
         eprintln!("error: {e:#}");

@@ -110,3 +110,20 @@ fn ctrl_c_stops_cleanly_and_leaves_no_half_written_shard() {
     assert!(!o.status.success() && e.contains("interrupted"), "{e}");
     no_shards(&out);
 }
+
+#[test]
+fn doing_nothing_is_a_usage_error_and_writes_nothing() {
+    let d = scratch("nothing_to_do");
+    let empty = d.join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    for args in [vec!["generate", "-o"], vec!["generate", empty.to_str().unwrap(), "-o"], vec!["deblur", empty.to_str().unwrap(), "-o"]] {
+        let out = d.join("out");
+        let mut a = args.clone();
+        a.push(out.to_str().unwrap());
+        let o = run(&a);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
+        let e = stderr(&o);
+        assert!(e.contains("no input") || e.contains("no image found"), "{args:?}: {e}");
+        assert!(!out.exists(), "{args:?} wrote {}", out.display());
+    }
+}
