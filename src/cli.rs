@@ -69,7 +69,7 @@ pub enum Command {
         /// Output video (.mp4, .mkv, .mov...) or folder.
         #[arg(short, long)]
         out: PathBuf,
-        /// A model written by `pipeline train`; default: the shipped shallow model (coded camera).
+        /// A model written by `pipeline train`; default: the shipped U-Net 16 (coded camera).
         #[arg(long)]
         model: Option<PathBuf>,
         /// Tile size in pixels (frames are processed in tiles with blended seams); default 1280 (a 720p frame in one pass; smaller tiles use less memory).
@@ -98,7 +98,7 @@ pub enum Command {
         /// Output folder.
         #[arg(short, long, default_value = "eval-out")]
         out: PathBuf,
-        /// A model written by `pipeline train`; default: the shipped shallow model (coded camera).
+        /// A model written by `pipeline train`; default: the shipped U-Net 16 (coded camera).
         #[arg(long)]
         model: Option<PathBuf>,
         /// The camera that blurs the test windows (overrides camera.type); use the one the model

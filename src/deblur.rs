@@ -11,9 +11,9 @@ use burn::tensor::Device;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// The model `deblur` uses without `--model`: the shipped shallow model trained on the coded
-/// camera (the best of the shipped models on validation, 0.3 MB).
-pub const DEFAULT_MODEL: &[u8] = include_bytes!("../models/shallow32-coded/model.safetensors");
+/// The model `deblur` uses without `--model`: the shipped U-Net 16 trained on the coded camera
+/// (the best coded model on the held-out test clips, docs/eval.md; 3.7 MB).
+pub const DEFAULT_MODEL: &[u8] = include_bytes!("../models/unet16-coded/model.safetensors");
 
 /// The default deblur file, embedded.
 pub const DEBLUR_TOML: &str = include_str!("../pipelines/deblur.toml");
@@ -365,8 +365,8 @@ pub fn load(model: Option<&Path>) -> Result<(FastNet, String)> {
     let device = Device::flex();
     let (net, name) = match model {
         Some(p) => crate::train::load_model(p, &device).map(|(n, a)| (n, format!("{} ({})", p.display(), a.name())))?,
-        None => crate::train::load_model_bytes(DEFAULT_MODEL, "embedded models/shallow32-coded", &device)
-            .map(|(n, a)| (n, format!("models/shallow32-coded ({})", a.name())))?,
+        None => crate::train::load_model_bytes(DEFAULT_MODEL, "embedded models/unet16-coded", &device)
+            .map(|(n, a)| (n, format!("models/unet16-coded ({})", a.name())))?,
     };
     Ok((FastNet::from_net(&net), name))
 }
