@@ -75,7 +75,7 @@ pub enum Command {
         /// Tile size in pixels (frames are processed in tiles with blended seams); default 1280 (a 720p frame in one pass; smaller tiles use less memory).
         #[arg(long)]
         tile: Option<usize>,
-        /// Overlap between tiles in pixels; default 32.
+        /// Overlap between tiles in pixels; default 64 (the U-Net sees about 100 px around a pixel).
         #[arg(long)]
         overlap: Option<usize>,
         /// Lossless output (FFV1 RGB in .mkv) instead of H.264.

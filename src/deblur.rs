@@ -39,7 +39,7 @@ pub struct DeblurConfig {
 
 impl Default for DeblurConfig {
     fn default() -> Self {
-        DeblurConfig { model: String::new(), tile: 1280, overlap: 32, lossless: false }
+        DeblurConfig { model: String::new(), tile: 1280, overlap: 64, lossless: false }
     }
 }
 
