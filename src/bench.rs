@@ -269,6 +269,7 @@ pub struct ModelSpeed {
     pub forward_time_ratio_vs_torch: Option<f64>,
 }
 
+#[cfg(feature = "train")]
 fn bench_data(n: usize, salt: usize) -> crate::model::fast::T4 {
     let v: Vec<f32> = (0..n * 3 * 128 * 128).map(|i| (((i + salt) * 7919) % 1000) as f32 / 1000.0).collect();
     crate::model::fast::T4::new(n, 3, 128, 128, v)
@@ -408,11 +409,12 @@ pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize, with_bu
 }
 
 /// The Python that runs the PyTorch baseline: `PIPELINE_PYTHON`, else `python3`.
+#[cfg(feature = "train")]
 fn python() -> String {
     std::env::var("PIPELINE_PYTHON").unwrap_or_else(|_| "python3".into())
 }
 
-/// `benches/torch_models.py` when python3 can import torch (the PyTorch baseline), else `None`.
+/// `benches/torch_models.py` when [`python`] can import torch (the PyTorch baseline), else `None`.
 #[cfg(feature = "train")]
 fn torch_script() -> Option<std::path::PathBuf> {
     let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/torch_models.py");
