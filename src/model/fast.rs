@@ -1225,8 +1225,13 @@ mod tests {
         }
     }
 
-    fn train_steps(arch: super::super::Arch, steps: usize) -> (Vec<f64>, FastNet) {
-        let mut f = FastNet::from_net(&Net::seeded(arch, &Device::flex(), 21).zero_last_layer(&Device::flex()));
+    /// The initial network of the training tests: built once per test, so that burn's shared
+    /// random generator (drawn lazily by other tests' modules) cannot differ between two runs.
+    fn initial(arch: super::super::Arch, dev: &Device) -> Net {
+        Net::seeded(arch, dev, 21).zero_last_layer(dev)
+    }
+
+    fn train_steps(mut f: FastNet, steps: usize) -> (Vec<f64>, FastNet) {
         let mut adam = Adam::default();
         let mut losses = Vec::new();
         for s in 0..steps as u64 {
@@ -1246,8 +1251,8 @@ mod tests {
     fn twenty_steps_give_burns_loss_curve() {
         use burn::optim::AdamConfig;
         for arch in [super::super::Arch::Shallow { width: 4 }, super::super::Arch::Unet { base: 4 }] {
-            let (ours, _) = train_steps(arch, 20);
-            let mut net = Net::seeded(arch, &ad(), 21).zero_last_layer(&ad());
+            let mut net = initial(arch, &ad());
+            let (ours, _) = train_steps(FastNet::from_net(&net), 20);
             let mut optim = AdamConfig::new().init();
             let huber_b = burn::nn::loss::HuberLossConfig::new(0.02).init();
             for (s, l) in ours.iter().enumerate() {
@@ -1267,9 +1272,10 @@ mod tests {
     #[test]
     fn the_same_seed_gives_the_same_weights_with_any_thread_count() {
         let arch = super::super::Arch::Unet { base: 4 };
+        let init = FastNet::from_net(&initial(arch, &Device::flex()));
         let run = |threads: usize| {
             rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| {
-                let (_, mut f) = train_steps(arch, 4);
+                let (_, mut f) = train_steps(init.clone(), 4);
                 let mut w = Vec::new();
                 f.params(&mut |p, _| w.extend_from_slice(p));
                 w
@@ -1282,7 +1288,7 @@ mod tests {
 
     #[test]
     fn adam_state_round_trips() {
-        let (_, mut f) = train_steps(super::super::Arch::Shallow { width: 4 }, 0);
+        let mut f = FastNet::from_net(&initial(super::super::Arch::Shallow { width: 4 }, &Device::flex()));
         let mut a = Adam::default();
         f.zero_grad();
         a.step(&mut f, 1e-3);
