@@ -30,9 +30,11 @@ extern "C" fn on_sigint(_: libc::c_int) {
 
 fn install_sigint() {
     static ONCE: std::sync::Once = std::sync::Once::new();
-    // SAFETY: the handler only stores to an atomic, which is async-signal-safe.
+    // SAFETY: the handler only stores to an atomic, which is async-signal-safe. SIGTERM (what
+    // Slurm and Kubernetes send before SIGKILL) stops a run the same way as Ctrl-C.
     ONCE.call_once(|| unsafe {
         libc::signal(libc::SIGINT, on_sigint as *const () as libc::sighandler_t);
+        libc::signal(libc::SIGTERM, on_sigint as *const () as libc::sighandler_t);
     });
 }
 
