@@ -591,7 +591,11 @@ pub fn load_model_bytes(bytes: &[u8], name: &str, device: &Device) -> Result<(Ne
     let mut bad = Finite(0);
     net.visit(&mut bad);
     if bad.0 > 0 {
-        return Err(Error::Invalid(format!("{}: {} weights are not finite (NaN or infinite); the model cannot be used", path.display(), bad.0)));
+        return Err(Error::Invalid(format!(
+            "{}: {} weights are not finite (NaN or infinite); the model cannot be used",
+            path.display(),
+            bad.0
+        )));
     }
     Ok((net, arch))
 }
@@ -667,7 +671,9 @@ impl Engine {
 
     fn optim_bytes(&self) -> Result<Vec<u8>> {
         match self {
-            Engine::Burn { optim, .. } => Ok(optim.clone().into_bytes().map_err(|e| Error::Invalid(format!("optimizer state: {e:?}")))?.to_vec()),
+            Engine::Burn { optim, .. } => {
+                Ok(optim.clone().into_bytes().map_err(|e| Error::Invalid(format!("optimizer state: {e:?}")))?.to_vec())
+            }
             Engine::Fast { adam, .. } => Ok(adam.to_bytes()),
         }
     }
@@ -742,7 +748,8 @@ impl Trainer {
             if let Ok(b) = std::fs::read(dir.join("report.json")) {
                 if let Ok(v) = serde_json::from_slice::<serde_json::Value>(&b) {
                     let keep = |p: &serde_json::Value| p["step"].as_u64().is_some_and(|s| s as usize <= start);
-                    let take = |k: &str| v[k].as_array().map(|a| a.iter().filter(|p| keep(p)).cloned().collect::<Vec<_>>()).unwrap_or_default();
+                    let take =
+                        |k: &str| v[k].as_array().map(|a| a.iter().filter(|p| keep(p)).cloned().collect::<Vec<_>>()).unwrap_or_default();
                     history = (
                         take("loss").into_iter().filter_map(|p| serde_json::from_value(p).ok()).collect(),
                         take("validation").into_iter().filter_map(|p| serde_json::from_value(p).ok()).collect(),
@@ -1109,7 +1116,8 @@ mod tests {
     fn a_model_with_non_finite_weights_is_refused_by_name() {
         let dir = std::env::temp_dir().join(format!("pipeline-nan-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let cfg: TrainConfig = toml::from_str("[model]\ntype = \"shallow\"\nwidth = 4\n[data]\nshards = [\"x\"]\n[output]\ndir = \"x\"\n").unwrap();
+        let cfg: TrainConfig =
+            toml::from_str("[model]\ntype = \"shallow\"\nwidth = 4\n[data]\nshards = [\"x\"]\n[output]\ndir = \"x\"\n").unwrap();
         let dev = Device::flex();
         let net = Net::seeded(cfg.model, &dev, 1);
         save_checkpoint(&dir, &net, Vec::new(), &cfg, 1).unwrap();

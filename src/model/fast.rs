@@ -74,7 +74,20 @@ unsafe impl Sync for Ptr {}
 /// # Safety
 /// Every index the strides reach must be inside the buffers.
 #[allow(clippy::too_many_arguments)]
-unsafe fn mm(m: usize, n: usize, k: usize, dst: *mut f32, dst_rs: usize, acc: bool, a: *const f32, a_rs: usize, a_cs: usize, b: *const f32, b_rs: usize, b_cs: usize) {
+unsafe fn mm(
+    m: usize,
+    n: usize,
+    k: usize,
+    dst: *mut f32,
+    dst_rs: usize,
+    acc: bool,
+    a: *const f32,
+    a_rs: usize,
+    a_cs: usize,
+    b: *const f32,
+    b_rs: usize,
+    b_cs: usize,
+) {
     if m == 0 || n == 0 {
         return;
     }
@@ -259,14 +272,21 @@ fn channel_sums(t: &T4) -> Vec<f32> {
 /// Runs `f(channel, plane)` for every channel on all cores, where `plane(k, s)` is the plane of
 /// that channel in sample `s` of `outs[k]`: each call writes only its own channel's planes (the
 /// `'static` slices live as long as `outs`, which outlives the call).
-fn per_channel<R: Send>(c: usize, hw: usize, outs: &mut [&mut T4], f: impl Fn(usize, &mut dyn FnMut(usize, usize) -> &'static mut [f32]) -> R + Sync) -> Vec<R> {
+fn per_channel<R: Send>(
+    c: usize,
+    hw: usize,
+    outs: &mut [&mut T4],
+    f: impl Fn(usize, &mut dyn FnMut(usize, usize) -> &'static mut [f32]) -> R + Sync,
+) -> Vec<R> {
     let ptrs: Vec<Ptr> = outs.iter_mut().map(|t| Ptr(t.d.as_mut_ptr())).collect();
     (0..c)
         .into_par_iter()
         .map(|ch| {
             let ptrs = &ptrs;
             // SAFETY: the planes of channel ch are written by this unit only.
-            let mut plane = |which: usize, s: usize| -> &'static mut [f32] { unsafe { std::slice::from_raw_parts_mut(ptrs[which].0.add((s * c + ch) * hw), hw) } };
+            let mut plane = |which: usize, s: usize| -> &'static mut [f32] {
+                unsafe { std::slice::from_raw_parts_mut(ptrs[which].0.add((s * c + ch) * hw), hw) }
+            };
             f(ch, &mut plane)
         })
         .collect()
@@ -787,7 +807,10 @@ impl FastNet {
         let kind = match net {
             Net::Unet(u) => Kind::Unet(FUnet {
                 inc: Double::from_burn(&u.inc),
-                downs: [&u.down1, &u.down2, &u.down3, &u.down4].iter().map(|d| Down { conv: Double::from_burn(&d.conv), idx: Vec::new(), hw_in: (0, 0) }).collect(),
+                downs: [&u.down1, &u.down2, &u.down3, &u.down4]
+                    .iter()
+                    .map(|d| Down { conv: Double::from_burn(&d.conv), idx: Vec::new(), hw_in: (0, 0) })
+                    .collect(),
                 ups: [&u.up1, &u.up2, &u.up3, &u.up4]
                     .iter()
                     .map(|up| {
@@ -1110,7 +1133,9 @@ mod tests {
     fn convolution_matches_burn_forward_and_both_gradients() {
         // (batch, cin, cout, h, w, kernel, bias): odd sizes, batch 1 and 5.
         for (i, &(n, cin, cout, h, w, k, bias)) in
-            [(1, 3, 16, 17, 23, 3, false), (5, 32, 16, 9, 14, 3, false), (2, 16, 3, 12, 7, 1, true), (1, 8, 3, 5, 6, 3, true)].iter().enumerate()
+            [(1, 3, 16, 17, 23, 3, false), (5, 32, 16, 9, 14, 3, false), (2, 16, 3, 12, 7, 1, true), (1, 8, 3, 5, 6, 3, true)]
+                .iter()
+                .enumerate()
         {
             let mut cfg = Conv2dConfig::new([cin, cout], [k, k]).with_bias(bias);
             if k == 3 {
@@ -1161,7 +1186,8 @@ mod tests {
         let y = rand(n, 3, h, w, 6);
         // burn
         let out = net.forward(x.to_tensor(&ad()));
-        let loss = burn::nn::loss::HuberLossConfig::new(0.02).init().forward(out.clone(), y.to_tensor(&ad()), burn::nn::loss::Reduction::Mean);
+        let loss =
+            burn::nn::loss::HuberLossConfig::new(0.02).init().forward(out.clone(), y.to_tensor(&ad()), burn::nn::loss::Reduction::Mean);
         let gp = GradientsParams::from_grads(loss.backward(), &net);
         // ours
         let mut f = FastNet::from_net(&net);

@@ -116,7 +116,8 @@ fn ctrl_c_and_sigterm_stop_cleanly_and_leave_no_half_written_shard() {
         let e = stderr(&o);
         assert!(!o.status.success() && e.contains("interrupted"), "{sig}: {e}");
         let manifest = std::fs::read_to_string(out.join("manifest.json")).unwrap_or_default();
-        let left: Vec<String> = files(&out).into_iter().filter(|f| f.ends_with(".tmp") || (f.ends_with(".tar") && !manifest.contains(f.as_str()))).collect();
+        let left: Vec<String> =
+            files(&out).into_iter().filter(|f| f.ends_with(".tmp") || (f.ends_with(".tar") && !manifest.contains(f.as_str()))).collect();
         assert!(left.is_empty(), "{sig}: left behind: {left:?}");
         assert!(files(&out).iter().filter(|f| f.ends_with(".tar")).count() < 4, "{sig}: the run was not interrupted mid-way");
     }
