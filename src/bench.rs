@@ -314,18 +314,14 @@ fn time_burn(arch: crate::model::Arch, batch: usize, repeats: usize) -> (Vec<f64
 /// The same with the CPU fast path (`src/model/fast.rs`).
 #[cfg(feature = "train")]
 fn time_fast(arch: crate::model::Arch, batch: usize, repeats: usize) -> (Vec<f64>, Vec<f64>) {
-    use crate::model::fast::{huber, Adam, FastNet};
+    use crate::model::fast::{train_step, Adam, FastNet};
     let mut net = FastNet::from_net(&crate::model::Net::seeded(arch, &burn::tensor::Device::flex(), 7));
     let mut adam = Adam::default();
     let (x, y) = (bench_data(batch, 0), bench_data(batch, 1));
     let mut steps = Vec::new();
     for r in 0..repeats + 1 {
         let t = Instant::now();
-        net.zero_grad();
-        let out = net.forward_train(&x);
-        let (_, d) = huber(&out, &y, 0.02);
-        net.backward(&d);
-        adam.step(&mut net, 1e-4);
+        train_step(&mut net, &mut adam, &x, &y, 1e-4, 0.02);
         if r > 0 {
             steps.push(t.elapsed().as_secs_f64());
         }

@@ -453,14 +453,6 @@ fn run_plan(table: toml::Table, origin: &str, out: Option<&PathBuf>, c: &RunComm
         plan.set_out_dir(o);
     }
     let (task_index, task_count) = task_split(c)?;
-    // Doing nothing is not success: a run whose sources name no input stops before writing.
-    if crate::graph::list_inputs(&plan)?.is_empty() {
-        return Err(crate::Error::Usage(format!(
-            "no input: the source's paths name no file it reads; give videos ({}) or folders of them on the command line, or set sources.*.paths",
-            crate::graph::VIDEO_EXTS.join(", ")
-        ))
-        .into());
-    }
     let opts = RunOptions { task_index, task_count, progress: c.progress, command: std::env::args().collect::<Vec<_>>().join(" ") };
     let o = crate::graph::run(&plan, &opts)?;
     let r = &o.report;

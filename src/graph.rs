@@ -203,14 +203,21 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
     install_sigint();
     INTERRUPTED.store(false, Ordering::SeqCst);
     let t0 = Instant::now();
+    // Inputs: sorted, then this task's share, minus what the manifest already lists. Doing
+    // nothing is not success: sources that name no input stop before anything is written.
+    let all = list_inputs(plan)?;
+    if all.is_empty() {
+        return Err(Error::Usage(format!(
+            "no input: the source's paths name no file it reads; give videos ({}) or folders of them on the command line, or set sources.*.paths",
+            VIDEO_EXTS.join(", ")
+        )));
+    }
     let out_dir = plan.out_dir();
     std::fs::create_dir_all(&out_dir).map_err(|e| Error::Io { path: out_dir.clone(), source: e })?;
     let probe = out_dir.join(format!(".write-test.{}", std::process::id()));
     std::fs::write(&probe, b"").map_err(|e| Error::Io { path: out_dir.clone(), source: e })?;
     let _ = std::fs::remove_file(&probe);
 
-    // Inputs: sorted, this task's share, minus what the manifest already lists.
-    let all = list_inputs(plan)?;
     let n_total = all.len();
     let manifest_name = Manifest::file_name(opts.task_index, opts.task_count);
     let manifest = match plan.sink() {

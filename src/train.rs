@@ -648,16 +648,7 @@ impl Engine {
                 }
                 lv
             }
-            Engine::Fast { net, adam, .. } => {
-                net.zero_grad();
-                let out = net.forward_train(x);
-                let (lv, dout) = fast::huber(&out, y, delta as f32);
-                if lv.is_finite() {
-                    net.backward(&dout);
-                    adam.step(net, lr as f32);
-                }
-                lv
-            }
+            Engine::Fast { net, adam, .. } => fast::train_step(net, adam, x, y, lr as f32, delta as f32),
         }
     }
 
@@ -666,6 +657,13 @@ impl Engine {
         match self {
             Engine::Burn { model, .. } => model.valid(),
             Engine::Fast { net, template, .. } => net.write_into(template.clone()),
+        }
+    }
+
+    fn num_params(&self) -> usize {
+        match self {
+            Engine::Burn { model, .. } => model.num_params(),
+            Engine::Fast { template, .. } => template.num_params(),
         }
     }
 
@@ -745,16 +743,16 @@ impl Trainer {
             start = latest.step;
             // The history of the steps before the checkpoint, from the report of the run that
             // wrote it (a run stopped before writing one resumes without it).
-            if let Ok(b) = std::fs::read(dir.join("report.json")) {
-                if let Ok(v) = serde_json::from_slice::<serde_json::Value>(&b) {
-                    let keep = |p: &serde_json::Value| p["step"].as_u64().is_some_and(|s| s as usize <= start);
-                    let take =
-                        |k: &str| v[k].as_array().map(|a| a.iter().filter(|p| keep(p)).cloned().collect::<Vec<_>>()).unwrap_or_default();
-                    history = (
-                        take("loss").into_iter().filter_map(|p| serde_json::from_value(p).ok()).collect(),
-                        take("validation").into_iter().filter_map(|p| serde_json::from_value(p).ok()).collect(),
-                    );
-                }
+            #[derive(Deserialize)]
+            struct History {
+                loss: Vec<LossPoint>,
+                validation: Vec<ValPoint>,
+            }
+            let old: Option<History> = std::fs::read(dir.join("report.json")).ok().and_then(|b| serde_json::from_slice(&b).ok());
+            if let Some(mut h) = old {
+                h.loss.retain(|p| p.step <= start);
+                h.validation.retain(|p| p.step <= start);
+                history = (h.loss, h.validation);
             }
         }
         let engine = if fast {
@@ -879,7 +877,7 @@ impl Trainer {
         TrainReport {
             version: env!("CARGO_PKG_VERSION"),
             arch: self.cfg.model.name(),
-            parameters: self.engine.net().num_params(),
+            parameters: self.engine.num_params(),
             steps: self.step,
             resumed_from: (self.start > 0).then_some(self.start),
             seconds: self.t0.elapsed().as_secs_f64(),
@@ -909,7 +907,7 @@ impl Trainer {
     ///
     /// # Errors
     /// They cannot be written.
-    pub fn finish(self, _resumed: bool) -> Result<TrainReport> {
+    pub fn finish(self) -> Result<TrainReport> {
         if let Some(b) = &self.bar {
             b.finish();
         }
@@ -968,7 +966,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
         let batch: Vec<Pair> = (0..cfg.optim.batch).map(|_| stream.next()).collect::<Result<_>>()?;
         t.train_step(&batch)?;
     }
-    t.finish(opts.resume)
+    t.finish()
 }
 
 /// `[sinks.NAME] type = "trainer"`: trains on the generator's stream, no disk in between.
@@ -1092,7 +1090,7 @@ impl crate::stage::Sink for TrainerSink {
         if t.step == 0 {
             return Err(Error::Invalid(format!("the stream ended before one batch of {} training samples", t.cfg.optim.batch)));
         }
-        let r = t.finish(false)?;
+        let r = t.finish()?;
         let v = serde_json::json!({
             "sink": "trainer", "arch": r.arch, "steps": r.steps, "patches_per_s": r.patches_per_s,
             "validation": r.validation.last(), "dir": r.config.output.dir,

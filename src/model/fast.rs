@@ -54,7 +54,7 @@ impl T4 {
     /// From a burn tensor (any device).
     pub fn from_tensor(t: Tensor<4>) -> T4 {
         let [n, c, h, w] = t.dims();
-        T4::new(n, c, h, w, t.into_data().try_to_vec::<f32>().expect("f32 tensor"))
+        T4::new(n, c, h, w, values(t))
     }
     pub fn to_tensor(&self, device: &burn::tensor::Device) -> Tensor<4> {
         Tensor::<4>::from_data(TensorData::new(self.d.clone(), [self.n, self.c, self.h, self.w]), device)
@@ -309,8 +309,8 @@ impl Conv {
     fn from_burn(c: &Conv2d) -> Conv {
         let [cout, cin, k, k2] = c.weight.val().dims();
         assert_eq!(k, k2, "square kernels only");
-        let w = c.weight.val().into_data().try_to_vec::<f32>().expect("f32");
-        let b = c.bias.as_ref().map(|b| b.val().into_data().try_to_vec::<f32>().expect("f32"));
+        let w = values(c.weight.val());
+        let b = c.bias.as_ref().map(|b| values(b.val()));
         Conv { cin, cout, k, gw: vec![0.0; w.len()], gb: vec![0.0; b.as_ref().map_or(0, Vec::len)], w, b, x: None }
     }
     fn write(&self, c: &mut Conv2d) {
@@ -349,8 +349,9 @@ fn tensor<const D: usize>(v: &[f32], shape: [usize; D], device: &burn::tensor::D
     Tensor::<D>::from_data(TensorData::new(v.to_vec(), shape), device)
 }
 
-fn vec1(t: Tensor<1>) -> Vec<f32> {
-    t.into_data().try_to_vec::<f32>().expect("f32")
+/// The values of a float tensor of any rank, row-major.
+fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.into_data().try_to_vec::<f32>().expect("f32 tensor")
 }
 
 /// Conv (no bias) + BatchNorm + (leaky) ReLU, fused.
@@ -374,10 +375,10 @@ impl ConvBnAct {
         let c = bn.gamma.val().dims()[0];
         ConvBnAct {
             conv: Conv::from_burn(conv),
-            gamma: vec1(bn.gamma.val()),
-            beta: vec1(bn.beta.val()),
-            rmean: vec1(bn.running_mean.value_sync()),
-            rvar: vec1(bn.running_var.value_sync()),
+            gamma: values(bn.gamma.val()),
+            beta: values(bn.beta.val()),
+            rmean: values(bn.running_mean.value_sync()),
+            rvar: values(bn.running_var.value_sync()),
             momentum: bn.momentum as f32,
             eps: bn.epsilon as f32,
             slope,
@@ -596,8 +597,8 @@ impl UpConv {
     fn from_burn(c: &ConvTranspose2d) -> UpConv {
         let [cin, cout, kh, kw] = c.weight.val().dims();
         assert!(kh == 2 && kw == 2 && c.stride == [2, 2], "2x2 stride-2 transposed convolutions only");
-        let w = c.weight.val().into_data().try_to_vec::<f32>().expect("f32");
-        let b = c.bias.as_ref().map_or(vec![0.0; cout], |b| vec1(b.val()));
+        let w = values(c.weight.val());
+        let b = c.bias.as_ref().map_or(vec![0.0; cout], |b| values(b.val()));
         UpConv { cin, cout, gw: vec![0.0; w.len()], gb: vec![0.0; cout], w, b, x: None }
     }
     fn write(&self, c: &mut ConvTranspose2d) {
@@ -995,6 +996,19 @@ impl FastNet {
     }
 }
 
+/// One optimisation step: forward, Huber loss, backward, Adam. Returns the loss before the step;
+/// a non-finite loss leaves the network and the optimizer untouched.
+pub fn train_step(net: &mut FastNet, adam: &mut Adam, x: &T4, y: &T4, lr: f32, delta: f32) -> f64 {
+    net.zero_grad();
+    let out = net.forward_train(x);
+    let (loss, dout) = huber(&out, y, delta);
+    if loss.is_finite() {
+        net.backward(&dout);
+        adam.step(net, lr);
+    }
+    loss
+}
+
 /// Huber loss (mean over every element) and its gradient with respect to `pred`.
 pub fn huber(pred: &T4, target: &T4, delta: f32) -> (f64, T4) {
     let n = pred.d.len() as f64;
@@ -1261,14 +1275,8 @@ mod tests {
         let mut adam = Adam::default();
         let mut losses = Vec::new();
         for s in 0..steps as u64 {
-            let x = rand(4, 3, 16, 16, 200 + s % 3);
-            let y = rand(4, 3, 16, 16, 300 + s % 3);
-            f.zero_grad();
-            let o = f.forward_train(&x);
-            let (l, d) = huber(&o, &y, 0.02);
-            f.backward(&d);
-            adam.step(&mut f, 1e-3);
-            losses.push(l);
+            let (x, y) = (rand(4, 3, 16, 16, 200 + s % 3), rand(4, 3, 16, 16, 300 + s % 3));
+            losses.push(train_step(&mut f, &mut adam, &x, &y, 1e-3, 0.02));
         }
         (losses, f)
     }
