@@ -433,16 +433,36 @@ fn env_usize(name: &str) -> anyhow::Result<Option<usize>> {
 
 /// Task index and count from flags, then Slurm or Kubernetes variables.
 fn task_split(c: &RunCommon) -> anyhow::Result<(usize, usize)> {
-    let index = match c.shard_index {
-        Some(i) => i,
-        None => env_usize("SLURM_ARRAY_TASK_ID")?.or(env_usize("JOB_COMPLETION_INDEX")?).unwrap_or(0),
+    let (index, index_from) = match c.shard_index {
+        Some(i) => (i, "--shard-index"),
+        None => match (env_usize("SLURM_ARRAY_TASK_ID")?, env_usize("JOB_COMPLETION_INDEX")?) {
+            (Some(i), _) => (i, "SLURM_ARRAY_TASK_ID"),
+            (None, Some(i)) => (i, "JOB_COMPLETION_INDEX"),
+            (None, None) => (0, "the default"),
+        },
     };
-    let count = match c.shard_count {
-        Some(n) => n,
-        None => env_usize("SLURM_ARRAY_TASK_COUNT")?.unwrap_or(1),
+    let (count, count_from) = match c.shard_count {
+        Some(n) => (n, "--shard-count"),
+        None => match env_usize("SLURM_ARRAY_TASK_COUNT")? {
+            Some(n) => (n, "SLURM_ARRAY_TASK_COUNT"),
+            None => (1, "the default"),
+        },
     };
-    if count == 0 || index >= count {
-        bail!("--shard-index {index} must be below --shard-count {count}");
+    if count == 0 {
+        return Err(crate::Error::Usage(format!("{count_from} is 0; the task count must be at least 1")).into());
+    }
+    if index >= count {
+        let hint = if count_from == "SLURM_ARRAY_TASK_COUNT" {
+            " (a retried single array element such as `sbatch --array=17` sees a task count of 1: pass the whole job's count with --shard-count, as docs/scaling.md does)"
+        } else if count_from == "the default" {
+            " (pass the number of tasks with --shard-count)"
+        } else {
+            ""
+        };
+        return Err(crate::Error::Usage(format!(
+            "task index {index} (from {index_from}) must be below the task count {count} (from {count_from}){hint}"
+        ))
+        .into());
     }
     Ok((index, count))
 }
@@ -453,7 +473,7 @@ fn run_plan(table: toml::Table, origin: &str, out: Option<&PathBuf>, c: &RunComm
         plan.set_out_dir(o);
     }
     let (task_index, task_count) = task_split(c)?;
-    let opts = RunOptions { task_index, task_count, progress: c.progress, command: std::env::args().collect::<Vec<_>>().join(" ") };
+    let opts = RunOptions { task_index, task_count, progress: c.progress };
     let o = crate::graph::run(&plan, &opts)?;
     let r = &o.report;
     eprintln!(
@@ -608,6 +628,9 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
                 r.model,
                 out.display()
             );
+            if !r.failed.is_empty() {
+                return Err(crate::Error::InputsFailed(r.failed.len()).into());
+            }
             Ok(())
         }
         #[cfg(all(feature = "train", feature = "ffmpeg"))]

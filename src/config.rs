@@ -411,6 +411,11 @@ impl Plan {
     }
     pub fn set_out_dir(&mut self, dir: &Path) {
         let d = dir.to_string_lossy().into_owned();
+        // The recorded config shows the folder actually written.
+        let name = self.stages.last().expect("non-empty plan").0.clone();
+        if let Some(toml::Value::Table(t)) = self.resolved.get_mut("sinks").and_then(|s| s.get_mut(&name)) {
+            t.insert("dir".into(), toml::Value::String(d.clone()));
+        }
         match self.sink_mut() {
             SinkConfig::Shards(s) => s.dir = d,
             SinkConfig::Frames(f) => f.dir = d,

@@ -137,7 +137,8 @@ pub fn run_frame(net: &FastNet, rgb: &[u8], w: usize, h: usize, tiling: Tiling) 
 /// `report.json` of a deblur run.
 #[derive(Debug, serde::Serialize)]
 pub struct DeblurReport {
-    pub version: &'static str,
+    #[serde(flatten)]
+    pub provenance: crate::provenance::Provenance,
     pub input: String,
     pub output: String,
     pub model: String,
@@ -150,6 +151,14 @@ pub struct DeblurReport {
     pub seconds: f64,
     pub frames_per_s: f64,
     pub audio: &'static str,
+    /// Images that could not be read or written (folder input), and why; the rest were done.
+    pub failed: Vec<FailedImage>,
+}
+
+#[derive(Debug, serde::Serialize)]
+pub struct FailedImage {
+    pub path: String,
+    pub error: String,
 }
 
 impl DeblurReport {
@@ -167,7 +176,7 @@ impl DeblurReport {
     ) -> DeblurReport {
         let seconds = t0.elapsed().as_secs_f64();
         DeblurReport {
-            version: env!("CARGO_PKG_VERSION"),
+            provenance: crate::provenance::Provenance::now(),
             input: input.display().to_string(),
             output: output.display().to_string(),
             model: model.into(),
@@ -180,16 +189,27 @@ impl DeblurReport {
             seconds,
             frames_per_s: frames as f64 / seconds,
             audio,
+            failed: Vec::new(),
         }
     }
 }
 
-/// Where a file is written before it is renamed into place (same folder, same extension, so
-/// FFmpeg picks the same container).
+/// Where a file is written before it is renamed into place (same folder, ending in the same
+/// extension, so FFmpeg picks the same container; removed at the next start if the run is killed).
 fn temp_for(path: &Path) -> PathBuf {
-    let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    let ext = path.extension().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    path.with_file_name(format!(".{stem}.tmp-{}.{ext}", std::process::id()))
+    let name = path.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let ext = path.extension().map(|s| s.to_string_lossy().into_owned());
+    path.with_file_name(crate::io::temp_name(&name, ext.as_deref()))
+}
+
+/// The message of a run stopped by SIGINT or SIGTERM.
+const INTERRUPTED: &str = "interrupted: the unfinished output was removed";
+
+/// Removes temporaries of killed deblur runs in `dir` (this machine, process gone).
+fn remove_stale(dir: &Path) {
+    for p in crate::io::remove_stale(if dir.as_os_str().is_empty() { Path::new(".") } else { dir }, 0) {
+        eprintln!("removed {} (left by a run that was killed)", p.display());
+    }
 }
 
 /// Deblurs a video into a video of the same size and frame rate.
@@ -208,7 +228,9 @@ pub fn video(
     progress: bool,
 ) -> Result<DeblurReport> {
     use crate::io::video::{VideoReader, VideoWriter};
+    crate::signal::install();
     let t0 = Instant::now();
+    remove_stale(output.parent().unwrap_or(Path::new(".")));
     let name = |p: &Path, e: String| Error::Invalid(format!("{}: {e}", p.display()));
     let mut reader = VideoReader::open(input).map_err(|e| name(input, e))?;
     let (w, h) = (reader.info.width, reader.info.height);
@@ -220,6 +242,9 @@ pub fn video(
     let bar = progress.then(|| progress_bar(reader.info.frames_announced.unwrap_or(0)));
     let result = (|| -> Result<u64> {
         while let Some(f) = reader.next_frame().map_err(|e| name(input, e))? {
+            if crate::signal::interrupted() {
+                return Err(Error::Invalid(format!("{}: {INTERRUPTED}", output.display())));
+            }
             let rgb = to_rgb8(&f, reader.float);
             let out = run_frame(net, &rgb, w, h, tiling);
             writer.write_rgb8(&out).map_err(|e| name(output, e))?;
@@ -321,25 +346,49 @@ fn write_image(dst: &Path, ext: &str, w: usize, h: usize, rgb: &[u8]) -> Result<
 }
 
 /// Deblurs every image (PNG, JPEG, TIFF, OpenEXR) of a folder or glob into a folder, keeping
-/// the names and formats.
+/// the names and formats. An image that cannot be read or written is reported in
+/// [`DeblurReport::failed`] and the others are still done.
 ///
 /// # Errors
-/// An unreadable image (named), an unwritable output.
+/// No image found, an output folder that cannot be made, an interruption (SIGINT, SIGTERM;
+/// finished images stay, each written whole).
 pub fn images(net: &FastNet, model_name: &str, input: &Path, output: &Path, tiling: Tiling, progress: bool) -> Result<DeblurReport> {
+    crate::signal::install();
     let t0 = Instant::now();
     let files = crate::config::expand_paths(&[input.display().to_string()], &IMAGE_EXTENSIONS)?;
     if files.is_empty() {
         return Err(Error::Usage(format!("{}: no image found ({})", input.display(), IMAGE_EXTENSIONS.join(", "))));
     }
     std::fs::create_dir_all(output).map_err(|e| Error::Io { path: output.to_path_buf(), source: e })?;
+    remove_stale(output);
     let bar = progress.then(|| progress_bar(files.len() as u64));
-    let (mut w, mut h) = (0, 0);
+    let (mut w, mut h, mut done) = (0, 0, 0);
+    let mut failed = Vec::new();
     for f in &files {
+        if crate::signal::interrupted() {
+            return Err(Error::Invalid(format!(
+                "{}: interrupted after {done} of {} images (each written whole)",
+                output.display(),
+                files.len()
+            )));
+        }
         let ext = f.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
-        let (fw, fh, rgb) = read_image(f, &ext)?;
-        (w, h) = (fw, fh);
-        let out = run_frame(net, &rgb, fw, fh, tiling);
-        write_image(&output.join(f.file_name().expect("a file")), &ext, fw, fh, &out)?;
+        let res = read_image(f, &ext).and_then(|(fw, fh, rgb)| {
+            let out = run_frame(net, &rgb, fw, fh, tiling);
+            write_image(&output.join(f.file_name().expect("a file")), &ext, fw, fh, &out).map(|()| (fw, fh))
+        });
+        match res {
+            Ok(size) => {
+                (w, h) = size;
+                done += 1;
+            }
+            Err(e) => {
+                let msg = e.to_string();
+                let error = if msg.contains(&*f.to_string_lossy()) { msg } else { format!("{}: {msg}", f.display()) };
+                eprintln!("failed: {error}");
+                failed.push(FailedImage { path: f.display().to_string(), error });
+            }
+        }
         if let Some(b) = &bar {
             b.inc(1);
         }
@@ -347,7 +396,9 @@ pub fn images(net: &FastNet, model_name: &str, input: &Path, output: &Path, tili
     if let Some(b) = bar {
         b.finish_and_clear();
     }
-    Ok(DeblurReport::new(input, output, model_name, files.len() as u64, (w, h), None, tiling, t0, "none (images)"))
+    let mut r = DeblurReport::new(input, output, model_name, done, (w, h), None, tiling, t0, "none (images)");
+    r.failed = failed;
+    Ok(r)
 }
 
 /// The progress bar of `deblur`: frames done, frames/s, time left.

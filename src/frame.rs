@@ -97,6 +97,10 @@ pub enum FrameData {
 pub struct Input {
     /// Position in the sorted list of all inputs (before sharding across tasks).
     pub index: usize,
+    /// Hash of the input's identity (canonical path, or a procedural clip's number and seed):
+    /// every random choice about the input derives from it, so an input gives the same samples
+    /// whichever other inputs share its run.
+    pub id: u64,
     pub path: String,
     /// File stem made safe for WebDataset keys (no dots).
     pub key: String,

@@ -10,7 +10,7 @@ use crate::optics::Camera;
 use crate::stage::blur::{Blurrer, CodedBlur};
 use crate::stage::noise::Noise;
 use crate::stage::patches::{Patches, Selector};
-use crate::stage::shards::{completed, Blackhole, Frames, Manifest, Shards};
+use crate::stage::shards::{content_hash, Blackhole, Frames, Manifest, Shards};
 use crate::stage::source::{input_key, Needs, Stills};
 use crate::stage::{Counters, Emit, Linearize, Sink, Source, StageError, Transform};
 use crate::{Error, Result};
@@ -21,22 +21,6 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
-
-static INTERRUPTED: AtomicBool = AtomicBool::new(false);
-
-extern "C" fn on_sigint(_: libc::c_int) {
-    INTERRUPTED.store(true, Ordering::SeqCst);
-}
-
-fn install_sigint() {
-    static ONCE: std::sync::Once = std::sync::Once::new();
-    // SAFETY: the handler only stores to an atomic, which is async-signal-safe. SIGTERM (what
-    // Slurm and Kubernetes send before SIGKILL) stops a run the same way as Ctrl-C.
-    ONCE.call_once(|| unsafe {
-        libc::signal(libc::SIGINT, on_sigint as *const () as libc::sighandler_t);
-        libc::signal(libc::SIGTERM, on_sigint as *const () as libc::sighandler_t);
-    });
-}
 
 /// How progress is shown.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -55,12 +39,11 @@ pub struct RunOptions {
     pub task_index: usize,
     pub task_count: usize,
     pub progress: ProgressMode,
-    pub command: String,
 }
 
 impl Default for RunOptions {
     fn default() -> Self {
-        RunOptions { task_index: 0, task_count: 1, progress: ProgressMode::Never, command: String::new() }
+        RunOptions { task_index: 0, task_count: 1, progress: ProgressMode::Never }
     }
 }
 
@@ -79,17 +62,25 @@ pub struct FailedInput {
     pub error: String,
 }
 
-/// `report.json`.
+/// A run's report: `reports/{generate|run}-{time}-{pid}.json`, one per run, never overwritten,
+/// and a copy as `report.json` (the latest run).
 #[derive(Debug, Clone, Serialize)]
 pub struct Report {
-    pub version: &'static str,
-    pub command: String,
+    #[serde(flatten)]
+    pub provenance: crate::provenance::Provenance,
+    /// The output folder as resolved (`-o`, else the sink's `dir`).
+    pub out_dir: String,
     pub seed: u64,
     pub task_index: usize,
     pub task_count: usize,
     pub inputs_total: usize,
     pub inputs_selected: usize,
     pub inputs_skipped: Vec<String>,
+    /// Inputs the manifest listed whose shards were missing, damaged or made with other
+    /// settings (redone when this run reads them), and why.
+    pub inputs_redone: Vec<FailedInput>,
+    /// Temporary files of killed runs removed at the start.
+    pub stale_removed: Vec<String>,
     pub inputs_done: u64,
     pub inputs_failed: Vec<FailedInput>,
     /// Size, frame rate, codec and frame counts of every input read.
@@ -97,6 +88,7 @@ pub struct Report {
     pub frames: u64,
     pub windows: u64,
     pub subframes: u64,
+    /// Samples of the inputs that finished (none of a failed input).
     pub samples: u64,
     pub seconds: f64,
     pub frames_per_s: f64,
@@ -126,8 +118,16 @@ pub fn list_inputs(plan: &Plan) -> Result<Vec<(Arc<Input>, Option<PathBuf>)>> {
         .into_iter()
         .enumerate()
         .map(|(i, p)| {
-            let path = p.as_ref().map_or_else(|| format!("procedural-{i:05}"), |p| p.display().to_string());
-            (Arc::new(Input { index: i, key: input_key(i, &path), path }), p)
+            use std::os::unix::ffi::OsStrExt;
+            let (path, identity) = match &p {
+                Some(p) => {
+                    let canon = std::fs::canonicalize(p).unwrap_or_else(|_| p.clone());
+                    (p.display().to_string(), canon.as_os_str().as_bytes().to_vec())
+                }
+                None => (format!("procedural-{i:05}"), format!("procedural-{i:05} seed {}", plan.seed).into_bytes()),
+            };
+            let id = crate::rng::hash_bytes(&identity);
+            (Arc::new(Input { index: i, id, key: input_key(&path, id), path }), p)
         })
         .collect())
 }
@@ -151,7 +151,7 @@ impl Timing {
 fn recv(rx: &Receiver<Item>, stop: &AtomicBool, t: &mut Timing) -> Option<Item> {
     let w = Instant::now();
     loop {
-        if stop.load(Ordering::Relaxed) || INTERRUPTED.load(Ordering::Relaxed) {
+        if stop.load(Ordering::Relaxed) || crate::signal::interrupted() {
             stop.store(true, Ordering::Relaxed);
             t.waiting += w.elapsed();
             return None;
@@ -200,9 +200,9 @@ pub struct Outcome {
 /// Configuration that only shows at build time, an unwritable output folder, or the first
 /// fatal error of any stage (named). Failed inputs are not errors: they are in the report.
 pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
-    install_sigint();
-    INTERRUPTED.store(false, Ordering::SeqCst);
+    crate::signal::install();
     let t0 = Instant::now();
+    let provenance = crate::provenance::Provenance::now();
     // Inputs: sorted, then this task's share, minus what the manifest already lists. Doing
     // nothing is not success: sources that name no input stop before anything is written.
     let all = list_inputs(plan)?;
@@ -218,23 +218,57 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
     std::fs::write(&probe, b"").map_err(|e| Error::Io { path: out_dir.clone(), source: e })?;
     let _ = std::fs::remove_file(&probe);
 
+    // Temporary files of killed runs on this machine (their process is gone) go first.
+    let stale = crate::io::remove_stale(&out_dir, 3);
+    for p in &stale {
+        eprintln!("removed {} (left by a run that was killed)", p.display());
+    }
+
     let n_total = all.len();
     let manifest_name = Manifest::file_name(opts.task_index, opts.task_count);
     let manifest = match plan.sink() {
         SinkConfig::Shards(_) => Manifest::load(&out_dir, &manifest_name)?,
         _ => None,
     };
-    let done = completed(&manifest);
+    // What the manifest lists counts as done only when its shards are whole and were made with
+    // these settings; anything else is redone (damaged shards of inputs this run does not read
+    // are reported).
+    let settings = content_hash(&plan.resolved);
+    let mut done = std::collections::BTreeSet::new();
+    let mut redo: Vec<(String, String)> = Vec::new();
+    if let Some(m) = &manifest {
+        let checks: Vec<_> = {
+            use rayon::prelude::*;
+            m.inputs.par_iter().map(|i| (i, i.verify(&out_dir))).collect()
+        };
+        for (i, check) in checks {
+            match check {
+                Ok(()) if i.settings == settings || i.settings.is_empty() => {
+                    done.insert(i.key.clone());
+                }
+                Ok(()) => redo.push((i.path.clone(), "made with other settings".into())),
+                Err(why) => redo.push((i.path.clone(), why)),
+            }
+        }
+    }
     let mut skipped = Vec::new();
     let selected: Vec<(Arc<Input>, Option<PathBuf>)> = all
         .into_iter()
         .filter(|(i, _)| i.index % opts.task_count == opts.task_index)
         .filter(|(i, _)| {
-            let skip = done.contains_key(&i.path);
+            let skip = done.contains(&i.key);
             if skip {
                 skipped.push(i.path.clone());
             }
             !skip
+        })
+        .collect();
+    let redone: Vec<FailedInput> = redo
+        .into_iter()
+        .map(|(path, error)| {
+            let ours = selected.iter().any(|(i, _)| i.path == path);
+            eprintln!("{}: {path}: {error}", if ours { "redoing" } else { "warning: not redone (not an input of this run)" });
+            FailedInput { path, error }
         })
         .collect();
     let n_selected = selected.len() + skipped.len();
@@ -335,6 +369,7 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
                         s.max_samples_per_shard,
                         m,
                         manifest_name.clone(),
+                        settings.clone(),
                         counters.clone(),
                     )),
                 ));
@@ -345,7 +380,7 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
             #[cfg(feature = "train")]
             StagePlan::Sink(SinkConfig::Trainer(t)) => sink = Some((name.clone(), Box::new(crate::train::TrainerSink::new(t, plan.seed)?))),
             StagePlan::Sink(SinkConfig::Blackhole(_)) => {
-                sink = Some((name.clone(), Box::new(Blackhole { counters: counters.clone(), samples: 0, failed: Vec::new() })))
+                sink = Some((name.clone(), Box::new(Blackhole { counters: counters.clone(), samples: 0, pending: 0, failed: Vec::new() })))
             }
         }
     }
@@ -456,22 +491,25 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
     if let Some(e) = first.lock().expect("error slot").take() {
         return Err(e);
     }
-    let interrupted = INTERRUPTED.load(Ordering::SeqCst);
+    let interrupted = crate::signal::interrupted();
     if interrupted {
         return Err(Error::Invalid("interrupted: unfinished outputs were removed; finished inputs are in the manifest".into()));
     }
     let secs = t0.elapsed().as_secs_f64();
-    let (frames, windows, samples) = (Counters::get(&counters.frames), Counters::get(&counters.windows), Counters::get(&counters.samples));
+    let (frames, windows, samples) =
+        (Counters::get(&counters.frames), Counters::get(&counters.windows), Counters::get(&counters.samples_kept));
     let subframes = windows * plan.blur().map_or(0, |b| b.window as u64);
     let report = Report {
-        version: env!("CARGO_PKG_VERSION"),
-        command: opts.command.clone(),
+        provenance: provenance.clone(),
+        out_dir: out_dir.display().to_string(),
         seed: plan.seed,
         task_index: opts.task_index,
         task_count: opts.task_count,
         inputs_total: n_total,
         inputs_selected: n_selected,
         inputs_skipped: skipped,
+        inputs_redone: redone,
+        stale_removed: stale.iter().map(|p| p.display().to_string()).collect(),
         inputs_done: Counters::get(&counters.inputs_done),
         inputs_failed: failures.into_iter().map(|(path, error)| FailedInput { path, error }).collect(),
         inputs: counters.inputs.lock().expect("inputs").clone(),
@@ -497,11 +535,15 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
     Ok(Outcome { report, out_dir })
 }
 
+/// Writes `reports/{stem}[-{task}-of-{n}]-{time}-{pid}.json` (kept) and `{stem}[-{task}-of-{n}].json`
+/// (the latest run of this task).
 fn write_report(dir: &Path, opts: &RunOptions, stem: &str, r: &Report) -> Result<()> {
-    let name =
-        if opts.task_count > 1 { format!("{stem}-{:05}-of-{:05}.json", opts.task_index, opts.task_count) } else { format!("{stem}.json") };
+    let stem = if opts.task_count > 1 { format!("{stem}-{:05}-of-{:05}", opts.task_index, opts.task_count) } else { stem.to_string() };
     let bytes = serde_json::to_vec_pretty(r).expect("json");
-    crate::io::write_atomic(&dir.join(name), |w| w.write_all(&bytes))
+    let runs = dir.join("reports");
+    std::fs::create_dir_all(&runs).map_err(|e| Error::Io { path: runs.clone(), source: e })?;
+    crate::io::write_atomic(&runs.join(r.provenance.file_name(&stem)), |w| w.write_all(&bytes))?;
+    crate::io::write_atomic(&dir.join(format!("{stem}.json")), |w| w.write_all(&bytes))
 }
 
 /// Progress on stderr.

@@ -28,10 +28,12 @@ pub mod metrics;
 pub mod model;
 pub mod optics;
 pub mod plot;
+pub mod provenance;
 pub mod psfcmd;
 pub mod recon;
 pub mod rng;
 pub mod scene;
+pub mod signal;
 pub mod stage;
 #[cfg(feature = "train")]
 pub mod train;

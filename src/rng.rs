@@ -20,6 +20,11 @@ pub fn hash_str(s: &str) -> u64 {
     s.bytes().fold(0xcbf2_9ce4_8422_2325, |h, b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3))
 }
 
+/// FNV-1a of bytes (a path's exact bytes, which need not be UTF-8).
+pub fn hash_bytes(b: &[u8]) -> u64 {
+    mix(b.iter().fold(0xcbf2_9ce4_8422_2325, |h, &b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)))
+}
+
 /// Uniform in [0, 1) from 53 bits of a hash.
 pub fn unit(h: u64) -> f64 {
     (h >> 11) as f64 / (1u64 << 53) as f64
@@ -44,6 +49,11 @@ impl Rng {
         self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
         mix(self.0)
     }
+    /// FNV-1a of bytes (a path's exact bytes, which need not be UTF-8).
+    pub fn hash_bytes(b: &[u8]) -> u64 {
+        mix(b.iter().fold(0xcbf2_9ce4_8422_2325, |h, &b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3)))
+    }
+
     /// Uniform in [0, 1).
     pub fn uniform(&mut self) -> f64 {
         unit(self.next_u64())

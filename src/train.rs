@@ -221,7 +221,10 @@ impl TrainConfig {
 #[derive(Debug, Clone)]
 pub struct Pair {
     pub key: String,
-    pub input_index: usize,
+    /// The source input it was cut from: a hash of the input's key (`input` in the sample's
+    /// JSON), or the run-local `input_index` of shards written before 0.2. The validation split
+    /// is by this, never by patch.
+    pub source: u64,
     pub w: usize,
     pub h: usize,
     pub lq: Vec<u8>,
@@ -237,9 +240,9 @@ pub fn read_shard(path: &Path, want: Option<(usize, usize)>) -> Result<Vec<Pair>
     let f = std::fs::File::open(path).map_err(|e| Error::Io { path: path.to_path_buf(), source: e })?;
     let members = tar::read_all(std::io::BufReader::new(f)).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
     let mut out: Vec<Pair> = Vec::new();
-    let mut cur: Option<(String, Option<Vec<u8>>, Option<Vec<u8>>, Option<usize>)> = None;
+    let mut cur: Option<(String, Option<Vec<u8>>, Option<Vec<u8>>, Option<u64>)> = None;
     let bad = |key: &str, what: String| Error::Invalid(format!("{}: sample {key}: {what}", path.display()));
-    let finish = |c: (String, Option<Vec<u8>>, Option<Vec<u8>>, Option<usize>), out: &mut Vec<Pair>| -> Result<()> {
+    let finish = |c: (String, Option<Vec<u8>>, Option<Vec<u8>>, Option<u64>), out: &mut Vec<Pair>| -> Result<()> {
         let (key, lq, gt, idx) = c;
         let lq = lq.ok_or_else(|| bad(&key, "has no lq.png".into()))?;
         let gt = gt.ok_or_else(|| bad(&key, "has no gt.png".into()))?;
@@ -253,7 +256,7 @@ pub fn read_shard(path: &Path, want: Option<(usize, usize)>) -> Result<Vec<Pair>
                 return Err(bad(&key, format!("patch is {w}x{h}, expected {ww}x{wh} like the others")));
             }
         }
-        out.push(Pair { key, input_index: idx.unwrap_or(0), w, h, lq, gt });
+        out.push(Pair { key, source: idx.unwrap_or(0), w, h, lq, gt });
         Ok(())
     };
     for (name, bytes) in members {
@@ -270,7 +273,7 @@ pub fn read_shard(path: &Path, want: Option<(usize, usize)>) -> Result<Vec<Pair>
             "gt.png" => c.2 = Some(bytes),
             "json" => {
                 let v: serde_json::Value = serde_json::from_slice(&bytes).map_err(|e| bad(key, format!("json is not valid ({e})")))?;
-                c.3 = v["input_index"].as_u64().map(|i| i as usize);
+                c.3 = v["input"].as_str().map(hash_str).or(v["input_index"].as_u64());
             }
             _ => {}
         }
@@ -282,8 +285,8 @@ pub fn read_shard(path: &Path, want: Option<(usize, usize)>) -> Result<Vec<Pair>
 }
 
 /// Train/validation split by source input (never by patch).
-pub fn is_validation(seed: u64, input_index: usize, fraction: f64) -> bool {
-    unit(hash(&[seed, input_index as u64, hash_str("val-split")])) < fraction
+pub fn is_validation(seed: u64, source: u64, fraction: f64) -> bool {
+    unit(hash(&[seed, source, hash_str("val-split")])) < fraction
 }
 
 /// Flip or rotate an interleaved RGB square patch in place of `t` (0..8: the dihedral group).
@@ -357,7 +360,7 @@ impl Stream {
             }
             let s = self.queue.pop().expect("refilled");
             let pairs = read_shard(&s, self.size)?;
-            self.pending.extend(pairs.into_iter().filter(|p| !is_validation(self.seed, p.input_index, self.fraction)));
+            self.pending.extend(pairs.into_iter().filter(|p| !is_validation(self.seed, p.source, self.fraction)));
             if !self.pending.is_empty() {
                 read_epochs = 0;
             }
@@ -482,8 +485,8 @@ pub struct TrainReport {
     pub resumed_from: Option<usize>,
     pub seconds: f64,
     pub patches_per_s: f64,
-    pub train_inputs: Vec<usize>,
-    pub val_inputs: Vec<usize>,
+    pub train_inputs: Vec<u64>,
+    pub val_inputs: Vec<u64>,
     pub val_samples: usize,
     pub metrics_convention: &'static str,
     pub loss: Vec<LossPoint>,
@@ -694,8 +697,8 @@ pub struct Trainer {
     start: usize,
     end: usize,
     pub val: Vec<Pair>,
-    pub train_inputs: std::collections::BTreeSet<usize>,
-    pub val_inputs: std::collections::BTreeSet<usize>,
+    pub train_inputs: std::collections::BTreeSet<u64>,
+    pub val_inputs: std::collections::BTreeSet<u64>,
     losses: Vec<LossPoint>,
     vals: Vec<ValPoint>,
     t0: Instant,
@@ -805,11 +808,11 @@ impl Trainer {
     /// Files a sample under training or validation by its source input; true if it is for
     /// training.
     pub fn admit(&mut self, p: &Pair) -> bool {
-        if is_validation(self.cfg.seed, p.input_index, self.cfg.data.val_fraction) {
-            self.val_inputs.insert(p.input_index);
+        if is_validation(self.cfg.seed, p.source, self.cfg.data.val_fraction) {
+            self.val_inputs.insert(p.source);
             false
         } else {
-            self.train_inputs.insert(p.input_index);
+            self.train_inputs.insert(p.source);
             true
         }
     }
@@ -1060,7 +1063,7 @@ impl crate::stage::Sink for TrainerSink {
                     };
                     let pair = Pair {
                         key: format!("{}_{:06}", s.input.key, s.window),
-                        input_index: s.input.index,
+                        source: hash_str(&s.input.key),
                         w: p.w,
                         h: p.h,
                         lq: rgb(&p.lq),

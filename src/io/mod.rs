@@ -9,4 +9,4 @@ pub mod tar;
 #[cfg(feature = "ffmpeg")]
 pub mod video;
 
-pub use atomic::write_atomic;
+pub use atomic::{host, remove_stale, temp_name, temp_path, write_atomic};

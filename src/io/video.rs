@@ -70,6 +70,10 @@ impl VideoReader {
         if !path.exists() {
             return Err("no such file".into());
         }
+        // FFmpeg takes UTF-8 names only (ffmpeg-next would panic on any other).
+        if path.to_str().is_none() {
+            return Err("the file name is not valid UTF-8, which FFmpeg cannot open; rename the file".into());
+        }
         let ictx = ff::format::input(&path).map_err(|e| format!("not a readable video ({})", fmt_err(e)))?;
         let st = ictx.streams().best(ff::media::Type::Video).ok_or("no video stream")?;
         let stream = st.index();

@@ -343,7 +343,7 @@ impl CodedBlur {
         let pairs = match &self.crop_first {
             Some(sel) => {
                 let pos = sel
-                    .positions(self.seed, input.index, self.window, w, h)
+                    .positions(self.seed, input.id, self.window, w, h)
                     .map_err(|e| StageError::Input(input.clone(), format!("{}: {e}", input.path)))?;
                 let lqs = self.blurrer.blur_patches(&frames, &pos, sel.size);
                 pos.into_iter()

@@ -38,6 +38,9 @@ pub struct Counters {
     pub frames: AtomicU64,
     pub windows: AtomicU64,
     pub samples: AtomicU64,
+    /// Samples of inputs that finished (what the sink kept); `samples` also counts those of an
+    /// input still running or failed later.
+    pub samples_kept: AtomicU64,
     pub inputs_done: AtomicU64,
     pub inputs_failed: AtomicU64,
     pub inputs_total: AtomicU64,

@@ -94,10 +94,10 @@ impl Transform for Noise {
         };
         let base = match self.sigma {
             Sigma::Fixed(v) => v,
-            Sigma::Range([a, b]) => a + (b - a) * unit(hash(&[self.seed, s.input.index as u64, s.window, hash_str("sigma")])),
+            Sigma::Range([a, b]) => a + (b - a) * unit(hash(&[self.seed, s.input.id, s.window, hash_str("sigma")])),
         };
         let sigma = base / s.light_throughput.max(1e-6);
-        let key = hash(&[self.seed, s.input.index as u64, s.window, hash_str("noise")]);
+        let key = hash(&[self.seed, s.input.id, s.window, hash_str("noise")]);
         let curve = s.curve;
         let enc = self.encoder(curve);
         for p in &mut s.pairs {

@@ -23,14 +23,14 @@ impl Selector {
     ///
     /// # Errors
     /// The frame is smaller than a patch.
-    pub fn positions(&self, seed: u64, input: usize, window: u64, w: usize, h: usize) -> Result<Vec<(usize, usize)>, String> {
+    pub fn positions(&self, seed: u64, input: u64, window: u64, w: usize, h: usize) -> Result<Vec<(usize, usize)>, String> {
         let s = self.size;
         if w < s || h < s {
             return Err(format!("frames are {w}x{h}, smaller than a {s}x{s} patch"));
         }
         Ok(match self.placement {
             Placement::Random => {
-                let mut rng = Rng::new(hash(&[seed, input as u64, window, hash_str("patches")]));
+                let mut rng = Rng::new(hash(&[seed, input, window, hash_str("patches")]));
                 (0..self.per_window).map(|_| (rng.below(w - s + 1), rng.below(h - s + 1))).collect()
             }
             Placement::Grid => {
@@ -71,7 +71,7 @@ impl Transform for Patches {
             let full = s.pairs.remove(0);
             let pos = self
                 .selector
-                .positions(self.seed, s.input.index, s.window, full.w, full.h)
+                .positions(self.seed, s.input.id, s.window, full.w, full.h)
                 .map_err(|e| StageError::Input(s.input.clone(), format!("{}: {e}", s.input.path)))?;
             let sz = self.selector.size;
             s.pairs = pos

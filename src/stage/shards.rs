@@ -1,11 +1,13 @@
 //! Sinks: `shards` (WebDataset tar) and `frames` (GoPro folder layout).
 //!
 //! Shards: each sample is `key.lq.png`, `key.gt.png`, `key.json`, one after another; key
-//! `{stem}_{input:05}_{window:06}[_{patch:03}]` (no dots). Shards are named
-//! `{prefix}-{input:05}-{seq:04}.tar` by input index, so tasks of a sharded run never collide;
-//! they are written under temporary names and renamed when their input has finished, and the
-//! manifest is rewritten (atomically) after each input, so a rerun skips what it lists and an
-//! input that failed leaves nothing behind.
+//! `{stem}_{id}_{window:06}[_{patch:03}]` (no dots), where `{stem}_{id}` is the input's key (its
+//! file stem and a hash of its canonical path). Shards are named `{prefix}-{stem}_{id}-{seq:04}.tar`,
+//! so runs with other inputs and tasks of an array job never collide in one folder. They are
+//! written under hidden temporary names and renamed when their input has finished; then the
+//! manifest is updated under a lock (read, merge this input, write atomically), so runs that
+//! share a folder, one after another or at once, all keep their entries. Each shard's size and
+//! CRC-32 are recorded, and a rerun redoes an input whose shards are missing or damaged.
 
 use super::{Counters, Sink};
 use crate::config::ImageFormat;
@@ -13,7 +15,6 @@ use crate::frame::{Img, Input, InputInfo, Item, Pair, Sample};
 use crate::io::{exr, png as png_io, tar, write_atomic};
 use crate::optics::transfer::{Curve, Encoder};
 use serde::{Deserialize, Serialize};
-use std::collections::BTreeMap;
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
@@ -37,7 +38,8 @@ fn png_bytes(img: &Img, w: usize, h: usize, curve: Curve) -> Vec<u8> {
 #[derive(Serialize)]
 struct SampleMeta<'a> {
     video: &'a str,
-    input_index: usize,
+    /// The input's key (file stem and path hash), the same in every run that reads the file.
+    input: &'a str,
     window: u64,
     frames: [u64; 2],
     camera: &'static str,
@@ -67,7 +69,7 @@ fn sample_key(s: &Sample, p: &Pair) -> String {
 fn meta_json(s: &Sample, p: &Pair) -> Vec<u8> {
     let m = SampleMeta {
         video: &s.input.path,
-        input_index: s.input.index,
+        input: &s.input.key,
         window: s.window,
         frames: [s.first_frame, s.first_frame + s.frames as u64 - 1],
         camera: s.camera.name(),
@@ -84,6 +86,57 @@ fn meta_json(s: &Sample, p: &Pair) -> Vec<u8> {
 pub struct ManifestShard {
     pub name: String,
     pub samples: usize,
+    /// Size in bytes and CRC-32 (hex) of the whole file (absent in manifests before 0.2).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bytes: Option<u64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub crc32: Option<String>,
+}
+
+impl ManifestShard {
+    /// Checks the file in `dir` against the recorded size and checksum.
+    ///
+    /// # Errors
+    /// Why it is not whole: missing, another size, another checksum.
+    pub fn verify(&self, dir: &Path) -> std::result::Result<(), String> {
+        let p = dir.join(&self.name);
+        let meta = std::fs::metadata(&p).map_err(|e| format!("{}: {e}", self.name))?;
+        if let Some(b) = self.bytes {
+            if meta.len() != b {
+                return Err(format!("{}: {} bytes, the manifest says {b}", self.name, meta.len()));
+            }
+        }
+        if let Some(c) = &self.crc32 {
+            let mut h = crc32fast::Hasher::new();
+            let mut f = File::open(&p).map_err(|e| format!("{}: {e}", self.name))?;
+            std::io::copy(&mut f, &mut HashWriter { inner: std::io::sink(), crc: &mut h, bytes: 0 })
+                .map_err(|e| format!("{}: {e}", self.name))?;
+            let got = format!("{:08x}", h.finalize());
+            if &got != c {
+                return Err(format!("{}: CRC-32 {got}, the manifest says {c}", self.name));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Passes writes through, counting bytes and updating a CRC-32.
+struct HashWriter<'a, W: Write> {
+    inner: W,
+    crc: &'a mut crc32fast::Hasher,
+    bytes: u64,
+}
+
+impl<W: Write> Write for HashWriter<'_, W> {
+    fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+        let n = self.inner.write(buf)?;
+        self.crc.update(&buf[..n]);
+        self.bytes += n as u64;
+        Ok(n)
+    }
+    fn flush(&mut self) -> std::io::Result<()> {
+        self.inner.flush()
+    }
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -98,6 +151,40 @@ pub struct ManifestInput {
     pub windows: u64,
     pub samples: usize,
     pub shards: Vec<ManifestShard>,
+    /// Hash of the settings that decide the samples' content ([`content_hash`]): a rerun with
+    /// other settings redoes the input instead of keeping samples made differently.
+    #[serde(default)]
+    pub settings: String,
+}
+
+impl ManifestInput {
+    /// Checks every shard of the input.
+    ///
+    /// # Errors
+    /// The first shard that is not whole, and why.
+    pub fn verify(&self, dir: &Path) -> std::result::Result<(), String> {
+        self.shards.iter().try_for_each(|s| s.verify(dir))
+    }
+}
+
+/// Hash of what decides the samples' content: the seed, the sources' and transforms' settings,
+/// minus input lists and thread counts (which change neither pixels nor keys).
+pub fn content_hash(resolved: &toml::Table) -> String {
+    fn strip(v: &toml::Value) -> toml::Value {
+        match v {
+            toml::Value::Table(t) => toml::Value::Table(
+                t.iter().filter(|(k, _)| !matches!(k.as_str(), "paths" | "threads")).map(|(k, v)| (k.clone(), strip(v))).collect(),
+            ),
+            v => v.clone(),
+        }
+    }
+    let mut t = toml::Table::new();
+    for k in ["seed", "sources", "transforms"] {
+        if let Some(v) = resolved.get(k) {
+            t.insert(k.into(), strip(v));
+        }
+    }
+    format!("{:016x}", crate::rng::hash_bytes(toml::to_string(&t).unwrap_or_default().as_bytes()))
 }
 
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
@@ -134,13 +221,62 @@ impl Manifest {
             Err(e) => Err(crate::Error::Io { path: p, source: e }),
         }
     }
+
+    /// Reads the manifest `name` in `dir` (or starts `empty`), lets `change` edit it and writes
+    /// it back atomically, all under an exclusive lock on `.{name}.lock`, so processes that
+    /// share the folder never lose each other's entries. Returns what was written.
+    ///
+    /// # Errors
+    /// The lock, the manifest or the folder cannot be read or written (named).
+    pub fn update(dir: &Path, name: &str, empty: Manifest, change: impl FnOnce(&mut Manifest)) -> crate::Result<Manifest> {
+        let lp = dir.join(format!(".{name}.lock"));
+        let lock = std::fs::OpenOptions::new().create(true).truncate(false).write(true).open(&lp);
+        let lock = lock.map_err(|e| crate::Error::Io { path: lp.clone(), source: e })?;
+        lock.lock().map_err(|e| crate::Error::Io { path: lp.clone(), source: e })?;
+        let mut m = Manifest::load(dir, name)?.unwrap_or(empty);
+        change(&mut m);
+        m.inputs.sort_by(|a, b| a.path.cmp(&b.path).then(a.key.cmp(&b.key)));
+        m.samples = m.inputs.iter().map(|i| i.samples).sum();
+        let bytes = serde_json::to_vec_pretty(&m).expect("json");
+        write_atomic(&dir.join(name), |w| w.write_all(&bytes))?;
+        drop(lock);
+        Ok(m)
+    }
 }
 
 struct OpenShard {
     tmp: PathBuf,
     name: String,
     w: BufWriter<File>,
+    crc: crc32fast::Hasher,
+    bytes: u64,
     samples: usize,
+}
+
+impl OpenShard {
+    /// Appends through the checksum.
+    fn append(&mut self, name: &str, data: &[u8]) -> std::io::Result<()> {
+        let mut hw = HashWriter { inner: &mut self.w, crc: &mut self.crc, bytes: 0 };
+        tar::append(&mut hw, name, data)?;
+        self.bytes += hw.bytes;
+        Ok(())
+    }
+
+    /// Ends the archive, syncs the file; its manifest entry.
+    fn close(mut self) -> std::io::Result<(PathBuf, ManifestShard)> {
+        let mut hw = HashWriter { inner: &mut self.w, crc: &mut self.crc, bytes: 0 };
+        tar::finish(&mut hw)?;
+        self.bytes += hw.bytes;
+        let f = self.w.into_inner().map_err(|e| e.into_error())?;
+        f.sync_all()?;
+        let sh = ManifestShard {
+            name: self.name,
+            samples: self.samples,
+            bytes: Some(self.bytes),
+            crc32: Some(format!("{:08x}", self.crc.finalize())),
+        };
+        Ok((self.tmp, sh))
+    }
 }
 
 struct Current {
@@ -157,10 +293,15 @@ pub struct Shards {
     pub dir: PathBuf,
     pub prefix: String,
     pub max_per_shard: usize,
+    /// The manifest as last written (by any process), and an empty one to start from.
     pub manifest: Manifest,
     pub manifest_name: String,
+    /// [`content_hash`] of this run's settings, recorded with each input.
+    pub settings: String,
     pub counters: Arc<Counters>,
     pub failed: Vec<(String, String)>,
+    /// This run's inputs, shards and samples.
+    done: (usize, usize, usize),
     cur: Option<Current>,
 }
 
@@ -171,35 +312,32 @@ impl Shards {
         max_per_shard: usize,
         manifest: Manifest,
         manifest_name: String,
+        settings: String,
         counters: Arc<Counters>,
     ) -> Shards {
-        Shards { dir, prefix, max_per_shard, manifest, manifest_name, counters, failed: Vec::new(), cur: None }
-    }
-
-    fn io(&self, p: &Path, e: std::io::Error) -> crate::Error {
-        crate::Error::Io { path: p.to_path_buf(), source: e }
+        Shards { dir, prefix, max_per_shard, manifest, manifest_name, settings, counters, failed: Vec::new(), done: (0, 0, 0), cur: None }
     }
 
     fn write_pair(&mut self, s: &Sample, p: &Pair) -> crate::Result<()> {
         let (dir, prefix, max) = (self.dir.clone(), self.prefix.clone(), self.max_per_shard);
         let cur = self.cur.as_mut().expect("a sample belongs to an open input");
         if cur.open.as_ref().is_some_and(|o| o.samples >= max) {
-            let mut o = cur.open.take().expect("checked");
-            tar::finish(&mut o.w).and_then(|_| o.w.flush()).map_err(|e| crate::Error::Io { path: o.tmp.clone(), source: e })?;
-            cur.closed.push((o.tmp, ManifestShard { name: o.name, samples: o.samples }));
+            let o = cur.open.take().expect("checked");
+            let tmp = o.tmp.clone();
+            cur.closed.push(o.close().map_err(|e| crate::Error::Io { path: tmp, source: e })?);
         }
         if cur.open.is_none() {
-            let name = format!("{prefix}-{:05}-{:04}.tar", cur.input.index, cur.closed.len());
-            let tmp = dir.join(format!(".{name}.{}.tmp", std::process::id()));
+            let name = format!("{prefix}-{}-{:04}.tar", cur.input.key, cur.closed.len());
+            let tmp = dir.join(crate::io::temp_name(&name, None));
             let f = File::create(&tmp).map_err(|e| crate::Error::Io { path: tmp.clone(), source: e })?;
-            cur.open = Some(OpenShard { tmp, name, w: BufWriter::new(f), samples: 0 });
+            cur.open = Some(OpenShard { tmp, name, w: BufWriter::new(f), crc: crc32fast::Hasher::new(), bytes: 0, samples: 0 });
         }
         let o = cur.open.as_mut().expect("opened");
         let key = sample_key(s, p);
         let res = (|| {
-            tar::append(&mut o.w, &format!("{key}.lq.png"), &png_bytes(&p.lq, p.w, p.h, s.curve))?;
-            tar::append(&mut o.w, &format!("{key}.gt.png"), &png_bytes(&p.gt, p.w, p.h, s.curve))?;
-            tar::append(&mut o.w, &format!("{key}.json"), &meta_json(s, p))
+            o.append(&format!("{key}.lq.png"), &png_bytes(&p.lq, p.w, p.h, s.curve))?;
+            o.append(&format!("{key}.gt.png"), &png_bytes(&p.gt, p.w, p.h, s.curve))?;
+            o.append(&format!("{key}.json"), &meta_json(s, p))
         })();
         res.map_err(|e| crate::Error::Io { path: o.tmp.clone(), source: e })?;
         o.samples += 1;
@@ -223,20 +361,26 @@ impl Shards {
         let Some(mut cur) = self.cur.take() else {
             return Ok(());
         };
-        if let Some(mut o) = cur.open.take() {
-            tar::finish(&mut o.w).and_then(|_| o.w.flush()).map_err(|e| self.io(&o.tmp, e))?;
-            let f = o.w.into_inner().map_err(|e| crate::Error::Io { path: o.tmp.clone(), source: e.into_error() })?;
-            f.sync_all().map_err(|e| self.io(&o.tmp, e))?;
-            cur.closed.push((o.tmp, ManifestShard { name: o.name, samples: o.samples }));
+        if let Some(o) = cur.open.take() {
+            let tmp = o.tmp.clone();
+            match o.close() {
+                Ok(c) => cur.closed.push(c),
+                Err(e) => {
+                    let _ = std::fs::remove_file(&tmp);
+                    cur.open = None;
+                    self.cur = Some(cur);
+                    self.discard();
+                    return Err(crate::Error::Io { path: tmp, source: e });
+                }
+            }
         }
         let mut shards = Vec::new();
         for (tmp, sh) in cur.closed {
             let fin = self.dir.join(&sh.name);
-            std::fs::rename(&tmp, &fin).map_err(|e| self.io(&fin, e))?;
+            std::fs::rename(&tmp, &fin).map_err(|e| crate::Error::Io { path: fin, source: e })?;
             shards.push(sh);
         }
-        self.manifest.inputs.retain(|i| i.path != cur.input.path);
-        self.manifest.inputs.push(ManifestInput {
+        let entry = ManifestInput {
             index: cur.input.index,
             path: cur.input.path.clone(),
             key: cur.input.key.clone(),
@@ -247,12 +391,26 @@ impl Shards {
             windows: cur.windows,
             samples: cur.samples,
             shards,
-        });
-        self.manifest.inputs.sort_by_key(|i| i.index);
-        self.manifest.samples = self.manifest.inputs.iter().map(|i| i.samples).sum();
-        let path = self.dir.join(&self.manifest_name);
-        let bytes = serde_json::to_vec_pretty(&self.manifest).expect("json");
-        write_atomic(&path, |w| w.write_all(&bytes))
+            settings: self.settings.clone(),
+        };
+        self.done.0 += 1;
+        self.done.1 += entry.shards.len();
+        self.done.2 += entry.samples;
+        Counters::add(&self.counters.samples_kept, entry.samples as u64);
+        let empty = Manifest { inputs: Vec::new(), samples: 0, ..self.manifest.clone() };
+        let dir = self.dir.clone();
+        self.manifest = Manifest::update(&self.dir, &self.manifest_name, empty, |m| {
+            // An earlier entry of this input (other settings, damaged shards): its shards that
+            // the new entry does not reuse go.
+            for old in m.inputs.iter().filter(|i| i.key == entry.key) {
+                for sh in old.shards.iter().filter(|o| entry.shards.iter().all(|n| n.name != o.name)) {
+                    let _ = std::fs::remove_file(dir.join(&sh.name));
+                }
+            }
+            m.inputs.retain(|i| i.key != entry.key);
+            m.inputs.push(entry);
+        })?;
+        Ok(())
     }
 }
 
@@ -290,13 +448,17 @@ impl Sink for Shards {
 
     fn finish(&mut self) -> crate::Result<serde_json::Value> {
         self.commit()?;
+        let (inputs, shards, samples) = self.done;
         Ok(serde_json::json!({
             "sink": "shards",
             "dir": self.dir,
             "manifest": self.manifest_name,
-            "shards": self.manifest.inputs.iter().map(|i| i.shards.len()).sum::<usize>(),
-            "samples": self.manifest.samples,
-            "inputs": self.manifest.inputs.len(),
+            "this_run": { "inputs": inputs, "shards": shards, "samples": samples },
+            "manifest_totals": {
+                "inputs": self.manifest.inputs.len(),
+                "shards": self.manifest.inputs.iter().map(|i| i.shards.len()).sum::<usize>(),
+                "samples": self.manifest.samples,
+            },
         }))
     }
 
@@ -318,11 +480,13 @@ pub struct Frames {
     pub failed: Vec<(String, String)>,
     written: Vec<PathBuf>,
     samples: usize,
+    /// Samples of the input being written.
+    pending: usize,
 }
 
 impl Frames {
     pub fn new(dir: PathBuf, format: ImageFormat, counters: Arc<Counters>) -> Frames {
-        Frames { dir, format, counters, failed: Vec::new(), written: Vec::new(), samples: 0 }
+        Frames { dir, format, counters, failed: Vec::new(), written: Vec::new(), samples: 0, pending: 0 }
     }
 
     fn write(&mut self, s: &Sample, p: &Pair) -> crate::Result<()> {
@@ -363,16 +527,21 @@ impl Frames {
 impl Sink for Frames {
     fn consume(&mut self, item: Item) -> crate::Result<()> {
         match item {
-            Item::Begin(..) => self.written.clear(),
+            Item::Begin(..) => {
+                self.written.clear();
+                self.pending = 0;
+            }
             Item::Sample(s) => {
                 for p in &s.pairs {
                     self.write(&s, p)?;
                 }
-                self.samples += s.pairs.len();
+                self.pending += s.pairs.len();
                 Counters::add(&self.counters.samples, s.pairs.len() as u64);
             }
             Item::End(_, Ok(())) => {
                 self.written.clear();
+                self.samples += self.pending;
+                Counters::add(&self.counters.samples_kept, self.pending as u64);
                 Counters::add(&self.counters.inputs_done, 1);
             }
             Item::End(input, Err(e)) => {
@@ -400,26 +569,27 @@ impl Sink for Frames {
     }
 }
 
-/// Inputs a manifest lists as complete, by path.
-pub fn completed(manifest: &Option<Manifest>) -> BTreeMap<String, usize> {
-    manifest.iter().flat_map(|m| m.inputs.iter().map(|i| (i.path.clone(), i.samples))).collect()
-}
-
 /// `blackhole`: counts what arrives and keeps nothing.
 pub struct Blackhole {
     pub counters: Arc<Counters>,
     pub samples: usize,
+    pub pending: usize,
     pub failed: Vec<(String, String)>,
 }
 
 impl Sink for Blackhole {
     fn consume(&mut self, item: Item) -> crate::Result<()> {
         match item {
+            Item::Begin(..) => self.pending = 0,
             Item::Sample(s) => {
-                self.samples += s.pairs.len();
+                self.pending += s.pairs.len();
                 Counters::add(&self.counters.samples, s.pairs.len() as u64);
             }
-            Item::End(_, Ok(())) => Counters::add(&self.counters.inputs_done, 1),
+            Item::End(_, Ok(())) => {
+                self.samples += self.pending;
+                Counters::add(&self.counters.samples_kept, self.pending as u64);
+                Counters::add(&self.counters.inputs_done, 1);
+            }
             Item::End(input, Err(e)) => {
                 self.failed.push((input.path.clone(), e));
                 Counters::add(&self.counters.inputs_failed, 1);

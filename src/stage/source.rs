@@ -10,11 +10,14 @@ use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
 /// A WebDataset-safe key for an input: its file stem with anything but letters, digits, '-'
-/// and '_' replaced, plus its index so that equal stems in different folders stay apart.
-pub fn input_key(index: usize, path: &str) -> String {
-    let stem = std::path::Path::new(path).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+/// and '_' replaced, plus 12 hex digits of `id`, the hash of its identity (the canonical path's
+/// bytes, or a procedural clip's number and seed). Shard names and sample keys derive from it, so runs
+/// with other inputs, tasks of an array job and equal stems in other folders never collide,
+/// while a rerun of the same input finds its own shards.
+pub fn input_key(stem_of: &str, id: u64) -> String {
+    let stem = std::path::Path::new(stem_of).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
     let clean: String = stem.chars().take(40).map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' }).collect();
-    format!("{clean}_{index:05}")
+    format!("{clean}_{:012x}", id >> 16)
 }
 
 /// Minimum frames and frame size the stages downstream need, checked by the source.
@@ -197,7 +200,7 @@ impl Stills {
         let w = if self.cfg.size[0] == 0 { iw } else { self.cfg.size[0].min(iw) };
         let h = if self.cfg.size[1] == 0 { ih } else { self.cfg.size[1].min(ih) };
         let off = ((iw - w) as f64 / 2.0, (ih - h) as f64 / 2.0);
-        let mut rng = Rng::new(hash(&[self.seed, input.index as u64, hash_str("stills")]));
+        let mut rng = Rng::new(hash(&[self.seed, input.id, hash_str("stills")]));
         let layers: Vec<Layer> = (0..self.cfg.layers)
             .map(|_| {
                 let (lw, lh) = (rng.range(0.2, 0.45) * w as f64, rng.range(0.2, 0.45) * h as f64);
@@ -270,7 +273,7 @@ impl Source for Stills {
                 },
                 None => {
                     let (w, h) = (self.cfg.size[0] + 64, self.cfg.size[1] + 64);
-                    (w, h, procedural_texture(w, h, hash(&[self.seed, input.index as u64, hash_str("texture")])))
+                    (w, h, procedural_texture(w, h, hash(&[self.seed, input.id, hash_str("texture")])))
                 }
             };
             let frames = self.render(input, &image);
@@ -368,7 +371,7 @@ mod tests {
             needs: Needs::default(),
             counters: Arc::default(),
         };
-        let input = Input { index: 0, path: "procedural:0".into(), key: "procedural_00000".into() };
+        let input = Input { index: 0, id: 0, path: "procedural:0".into(), key: "procedural_000000000000".into() };
         let img = (128, 112, procedural_texture(128, 112, 1));
         let a = s.render(&input, &img);
         let b = s.render(&input, &img);
@@ -390,6 +393,10 @@ mod tests {
 
     #[test]
     fn keys_have_no_dots() {
-        assert_eq!(input_key(3, "/a/b/my.clip.v2.mp4"), "my_clip_v2_00003");
+        let id = |p: &str| crate::rng::hash_bytes(p.as_bytes());
+        let k = input_key("/a/b/my.clip.v2.mp4", id("/a/b/my.clip.v2.mp4"));
+        assert!(k.starts_with("my_clip_v2_") && k.len() == "my_clip_v2_".len() + 12 && !k.contains('.'), "{k}");
+        assert_ne!(k, input_key("/a/c/my.clip.v2.mp4", id("/a/c/my.clip.v2.mp4")), "equal stems in other folders");
+        assert_eq!(k, input_key("my.clip.v2.mp4", id("/a/b/my.clip.v2.mp4")), "the identity decides, not the spelling");
     }
 }

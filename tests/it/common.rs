@@ -43,7 +43,10 @@ pub fn clip(name: &str, args: &[&str]) -> PathBuf {
     let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("clips");
     std::fs::create_dir_all(&dir).unwrap();
     let out = dir.join(name);
-    let tmp = dir.join(format!("tmp-{}-{name}", std::process::id()));
+    // Tests run on several threads of one process and may ask for the same clip at once.
+    static N: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let n = N.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let tmp = dir.join(format!("tmp-{}-{n}-{name}", std::process::id()));
     let mut a: Vec<&str> = args.to_vec();
     let t = tmp.to_str().unwrap().to_string();
     a.push(&t);

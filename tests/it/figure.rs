@@ -9,9 +9,9 @@ fn the_scene_source_feeds_the_pipeline_and_its_sharp_frame_is_the_render() {
     let cfg = concat!(env!("CARGO_MANIFEST_DIR"), "/pipelines/scene.toml");
     let o = run(&["run", cfg, "-o", d.to_str().unwrap(), "--progress", "never", "--set", "sources.scene.size=[64, 48]"]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let read = |sub: &str| {
-        pipeline::io::png::read_rgb8(&std::fs::read(d.join("procedural-00000_00000").join(sub).join("000000.png")).unwrap()).unwrap()
-    };
+    // The frames sink names the folder by the input's key: stem and a hash of the clip's identity.
+    let key = files(&d).into_iter().find(|f| f.starts_with("procedural-00000_")).expect("the clip's folder");
+    let read = |sub: &str| pipeline::io::png::read_rgb8(&std::fs::read(d.join(&key).join(sub).join("000000.png")).unwrap()).unwrap();
     let (w, h, sharp) = read("sharp");
     assert_eq!((w, h), (64, 48));
     // The window's target is sub-frame 26 of 52.

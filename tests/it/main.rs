@@ -10,5 +10,6 @@ mod eval;
 mod figure;
 mod generate;
 mod psf_cli;
+mod shared_output;
 #[cfg(feature = "train")]
 mod train;
