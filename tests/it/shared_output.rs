@@ -132,14 +132,18 @@ fn a_deleted_truncated_or_altered_shard_is_redone_on_rerun() {
 #[test]
 fn sigterm_and_sigkill_at_any_point_then_a_rerun_give_the_uninterrupted_bytes() {
     let ins = four_inputs();
+    let t0 = std::time::Instant::now();
     let want = {
         let d = scratch("shared_kill_ref");
         ok(&generate(&d, &strs(&ins), &[SHORT]));
         tars(&d)
     };
-    // Delays spread over the run (it takes about a second alone), both signals.
+    // Signals at fractions of an uninterrupted run's time (which varies with the machine's load),
+    // both kinds.
+    let whole = t0.elapsed().as_millis() as u64;
     let mut interrupted = 0;
-    for (k, (sig, ms)) in [("-TERM", 150u64), ("-KILL", 300), ("-KILL", 550), ("-TERM", 800), ("-KILL", 1100)].into_iter().enumerate() {
+    for (k, (sig, f)) in [("-TERM", 0.15), ("-KILL", 0.3), ("-KILL", 0.5), ("-TERM", 0.7), ("-KILL", 0.85)].into_iter().enumerate() {
+        let ms = (whole as f64 * f) as u64;
         let d = scratch(&format!("shared_kill_{k}"));
         let child = bin()
             .arg("generate")
