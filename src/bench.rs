@@ -182,7 +182,7 @@ fn bench_plan(mode: &str, clip: &std::path::Path, out: &std::path::Path) -> crat
 #[cfg(feature = "ffmpeg")]
 pub fn generate(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> crate::Result<GenerateBench> {
     let dir = std::env::temp_dir().join(format!("pipeline-bench-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).map_err(|e| crate::Error::Io { path: dir.clone(), source: e })?;
+    std::fs::create_dir_all(&dir).map_err(|e| crate::Error::Io { path: dir.clone(), cause: e })?;
     let clip = dir.join(format!("bench-{w}x{h}-{fps}fps.mp4"));
     let long = dir.join(format!("bench-{w}x{h}-{fps}fps-long.mp4"));
     eprintln!("bench: making {} and a clip twice as long with the ffmpeg CLI", clip.display());
@@ -456,7 +456,7 @@ pub fn deblur(width: usize, height: usize, repeats: usize) -> crate::Result<Vec<
     let frame: Vec<u8> = (0..width * height * 3).map(|i| (crate::rng::hash(&[i as u64 / 7]) % 256) as u8).collect();
     let mut out = Vec::new();
     let mut names: Vec<String> = std::fs::read_dir(root.join("models"))
-        .map_err(|e| crate::Error::Io { path: root.join("models"), source: e })?
+        .map_err(|e| crate::Error::Io { path: root.join("models"), cause: e })?
         .filter_map(|e| e.ok())
         .filter(|e| e.path().join("model.safetensors").exists())
         .map(|e| e.file_name().to_string_lossy().into_owned())

@@ -467,8 +467,8 @@ fn task_split(c: &RunCommon) -> anyhow::Result<(usize, usize)> {
     Ok((index, count))
 }
 
-fn run_plan(table: toml::Table, origin: &str, out: Option<&PathBuf>, c: &RunCommon) -> anyhow::Result<()> {
-    let mut plan = crate::config::plan(table, origin)?;
+fn run_plan(table: toml::Table, origin: &crate::config::Origin, out: Option<&PathBuf>, c: &RunCommon) -> anyhow::Result<()> {
+    let mut plan = crate::config::plan_from(table, origin)?;
     if let Some(o) = out {
         plan.set_out_dir(o);
     }
@@ -499,32 +499,33 @@ fn run_plan(table: toml::Table, origin: &str, out: Option<&PathBuf>, c: &RunComm
 
 /// Checks a TOML file of any kind `pipeline` reads: a training file (`[model]`), an optics
 /// file (`[optics]`/`[camera]` only) or a pipeline; says what it is.
-fn describe(table: toml::Table, origin: &str) -> crate::Result<String> {
+fn describe(table: toml::Table, origin: &crate::config::Origin) -> crate::Result<String> {
+    let origin_name = origin.name.as_str();
     #[cfg(all(feature = "train", feature = "ffmpeg"))]
     if table.contains_key("eval") {
-        let f = crate::eval::EvalFile::from_table(table, origin)?;
+        let f = crate::eval::EvalFile::from_table(table, origin_name)?;
         return Ok(format!("eval file: N {:?}, sigma {:?}, camera {}", f.eval.windows, f.eval.sigmas, f.camera.kind.name()));
     }
     #[cfg(feature = "train")]
     if table.contains_key("deblur") {
-        let f = crate::deblur::DeblurFile::from_table(table, origin)?;
+        let f = crate::deblur::DeblurFile::from_table(table, origin_name)?;
         return Ok(format!("deblur file: tiles {} px, overlap {}", f.deblur.tile, f.deblur.overlap));
     }
     #[cfg(feature = "train")]
     if table.contains_key("model") {
-        let cfg: crate::train::TrainConfig = toml::Value::Table(table)
-            .try_into()
-            .map_err(|e: toml::de::Error| crate::Error::ConfigText(format!("{origin}: {}", e.to_string().trim())))?;
-        let errs = cfg.validate();
-        if !errs.is_empty() {
-            return Err(crate::Error::Config(errs));
+        let (cfg, mut errs) = crate::config::deserialize_all::<crate::train::TrainConfig>(&table);
+        if let Some(c) = &cfg {
+            errs.extend(c.validate());
         }
-        return Ok(format!("training file: {}, {} steps", cfg.model.name(), cfg.optim.steps));
+        match cfg {
+            Some(cfg) if errs.is_empty() => return Ok(format!("training file: {}, {} steps", cfg.model.name(), cfg.optim.steps)),
+            _ => return Err(origin.errors(errs)),
+        }
     }
     if !table.contains_key("sources") && (table.contains_key("optics") || table.contains_key("camera")) {
         let f: OpticsFile = toml::Value::Table(table)
             .try_into()
-            .map_err(|e: toml::de::Error| crate::Error::ConfigText(format!("{origin}: {}", e.to_string().trim())))?;
+            .map_err(|e: toml::de::Error| crate::Error::ConfigText(format!("{origin_name}: {}", e.to_string().trim())))?;
         let mut errs = f.optics.validate("optics");
         if let Some(c) = &f.camera {
             errs.extend(c.validate("camera"));
@@ -534,7 +535,7 @@ fn describe(table: toml::Table, origin: &str) -> crate::Result<String> {
         }
         return Ok(format!("optics file: Airy radius {:.2} px", f.optics.airy_radius_ref_px()));
     }
-    let plan = crate::config::plan(table, origin)?;
+    let plan = crate::config::plan_from(table, origin)?;
     Ok(plan.stages.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>().join(" -> "))
 }
 
@@ -571,14 +572,17 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
                 }
             }
             crate::config::apply_sets(&mut table, &a.common.sets).map_err(crate::Error::ConfigText)?;
-            run_plan(table, &origin, a.out.as_ref(), &a.common)
+            let text = a.config.is_none().then_some(GENERATE_TOML);
+            run_plan(table, &crate::config::Origin::new(&origin, text, &a.common.sets), a.out.as_ref(), &a.common)
         }
         #[cfg(feature = "train")]
         Command::Train { config, sets, resume, progress } => {
             let table = crate::config::load(&config, &sets)?;
-            let cfg: crate::train::TrainConfig = toml::Value::Table(table)
-                .try_into()
-                .map_err(|e: toml::de::Error| crate::Error::ConfigText(format!("{}: {}", config.display(), e.to_string().trim())))?;
+            let origin = crate::config::Origin::new(&config.display().to_string(), None, &sets);
+            let cfg = match crate::config::deserialize_all::<crate::train::TrainConfig>(&table) {
+                (Some(cfg), errs) if errs.is_empty() => cfg,
+                (_, errs) => return Err(origin.errors(errs).into()),
+            };
             let bar = bars(progress);
             let r = crate::train::train(&cfg, &crate::train::TrainOptions { resume, progress: bar, stop_after: None })?;
             let last = r.validation.last();
@@ -674,12 +678,14 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         }
         Command::Run(a) => {
             let table = crate::config::load(&a.pipeline, &a.common.sets)?;
-            run_plan(table, &a.pipeline.display().to_string(), a.out.as_ref(), &a.common)
+            let origin = crate::config::Origin::new(&a.pipeline.display().to_string(), None, &a.common.sets);
+            run_plan(table, &origin, a.out.as_ref(), &a.common)
         }
         Command::Validate { pipelines, sets } => {
             let mut bad = 0;
             for p in &pipelines {
-                match crate::config::load(p, &sets).and_then(|t| describe(t, &p.display().to_string())) {
+                let origin = crate::config::Origin::new(&p.display().to_string(), None, &sets);
+                match crate::config::load(p, &sets).and_then(|t| describe(t, &origin)) {
                     Ok(what) => println!("{}: ok ({what})", p.display()),
                     Err(e) => {
                         bad += 1;

@@ -459,7 +459,7 @@ pub fn apply_sets(table: &mut toml::Table, sets: &[String]) -> Result<(), String
 /// # Errors
 /// See above.
 pub fn load(path: &Path, sets: &[String]) -> Result<toml::Table, crate::Error> {
-    let text = std::fs::read_to_string(path).map_err(|e| crate::Error::Io { path: path.to_path_buf(), source: e })?;
+    let text = std::fs::read_to_string(path).map_err(|e| crate::Error::Io { path: path.to_path_buf(), cause: e })?;
     parse(&text, &path.display().to_string(), sets)
 }
 
@@ -600,16 +600,172 @@ fn check_sink(name: &str, s: &SinkConfig) -> Vec<ConfigError> {
     c.errors
 }
 
+/// Where the values of a pipeline came from: a file (its text, for line numbers) and the
+/// `--set` overrides applied on top. Error messages say which one to fix.
+#[derive(Debug, Clone, Default)]
+pub struct Origin {
+    pub name: String,
+    pub text: Option<String>,
+    pub sets: Vec<String>,
+}
+
+impl Origin {
+    /// `name` with its text read from disk when it is a file.
+    pub fn new(name: &str, text: Option<&str>, sets: &[String]) -> Origin {
+        let text = text.map(str::to_string).or_else(|| std::fs::read_to_string(name).ok());
+        Origin { name: name.to_string(), text, sets: sets.to_vec() }
+    }
+
+    /// `--set k=v` when an override gave `key` (or a table above it), else `file line N` (the
+    /// line of the key under its table header), else the file.
+    pub fn locate(&self, key: &str) -> String {
+        if let Some(s) = self.sets.iter().rev().find(|s| {
+            let k = s.split_once('=').map_or(s.as_str(), |(k, _)| k).trim();
+            key == k || key.starts_with(&format!("{k}.")) || k.starts_with(&format!("{key}."))
+        }) {
+            return format!("--set {s}");
+        }
+        match self.text.as_deref().and_then(|t| line_of(t, key)) {
+            Some(n) => format!("{} line {n}", self.name),
+            None => self.name.clone(),
+        }
+    }
+}
+
+impl Origin {
+    /// The errors, each saying where its value came from.
+    pub fn errors(&self, mut errs: Vec<ConfigError>) -> crate::Error {
+        for e in &mut errs {
+            e.message = format!("{} ({})", e.message, self.locate(&e.key));
+        }
+        crate::Error::Config(errs)
+    }
+}
+
+impl From<&str> for Origin {
+    fn from(name: &str) -> Origin {
+        Origin { name: name.into(), text: None, sets: Vec::new() }
+    }
+}
+
+/// The 1-based line of a dotted key in TOML text: under the longest `[table]` header that is a
+/// prefix of the key, the first `rest = ...` line (or the header itself for a table).
+fn line_of(text: &str, key: &str) -> Option<usize> {
+    let lines: Vec<&str> = text.lines().collect();
+    let parts: Vec<&str> = key.split('.').collect();
+    for cut in (0..=parts.len()).rev() {
+        let (table, rest) = (parts[..cut].join("."), parts[cut..].join("."));
+        let start = if cut == 0 {
+            Some(0)
+        } else {
+            lines.iter().position(|l| l.trim().strip_prefix('[').and_then(|l| l.strip_suffix(']')).is_some_and(|h| h.trim() == table))
+        };
+        let Some(start) = start else { continue };
+        if rest.is_empty() {
+            return Some(start + 1);
+        }
+        for (i, l) in lines.iter().enumerate().skip(start + usize::from(cut > 0)) {
+            let t = l.trim();
+            if t.starts_with('[') {
+                break;
+            }
+            if t.strip_prefix(rest.as_str()).is_some_and(|r| r.trim_start().starts_with('=')) {
+                return Some(i + 1);
+            }
+        }
+    }
+    None
+}
+
+/// Deserialises `table` as `T`, collecting every type error and unknown key (serde stops at the
+/// first): each error's culprit is the leaf whose removal makes that error go away; it is
+/// removed and the rest tried again. Returns the value (with the bad keys at their defaults) if
+/// one could be made, and the errors with their full keys.
+pub fn deserialize_all<T: serde::de::DeserializeOwned>(table: &toml::Table) -> (Option<T>, Vec<ConfigError>) {
+    fn leaves(t: &toml::Table, prefix: &str, out: &mut Vec<String>) {
+        for (k, v) in t {
+            let key = if prefix.is_empty() { k.clone() } else { format!("{prefix}.{k}") };
+            match v {
+                toml::Value::Table(sub) if !sub.is_empty() => leaves(sub, &key, out),
+                _ => out.push(key),
+            }
+        }
+    }
+    fn remove(t: &mut toml::Table, key: &str) {
+        match key.split_once('.') {
+            Some((head, rest)) => {
+                if let Some(toml::Value::Table(sub)) = t.get_mut(head) {
+                    remove(sub, rest);
+                }
+            }
+            None => {
+                t.remove(key);
+            }
+        }
+    }
+    fn get<'a>(t: &'a toml::Table, key: &str) -> Option<&'a toml::Table> {
+        key.split('.').filter(|k| !k.is_empty()).try_fold(t, |t, k| t.get(k)?.as_table())
+    }
+    let de = |t: &toml::Table| toml::Value::Table(t.clone()).try_into::<T>().map_err(|e| e.to_string());
+    let mut t = table.clone();
+    let mut errs = Vec::new();
+    for _ in 0..256 {
+        let e = match de(&t) {
+            Ok(v) => return (Some(v), errs),
+            Err(e) => e,
+        };
+        let message = e.lines().next().unwrap_or("").trim().to_string();
+        let at = e.lines().find_map(|l| l.trim().strip_prefix("in `").and_then(|l| l.strip_suffix('`'))).unwrap_or("").to_string();
+        let mut cands = Vec::new();
+        if let Some(sub) = get(&t, &at) {
+            leaves(sub, &at, &mut cands);
+        }
+        let culprit = cands.into_iter().find(|leaf| {
+            let mut u = t.clone();
+            remove(&mut u, leaf);
+            match de(&u) {
+                Ok(_) => true,
+                Err(e2) => e2 != e && !e2.contains("missing field"),
+            }
+        });
+        match culprit {
+            Some(leaf) => {
+                errs.push(ConfigError { key: leaf.clone(), message });
+                remove(&mut t, &leaf);
+            }
+            None => {
+                errs.push(ConfigError { key: if at.is_empty() { "(file)".into() } else { at }, message });
+                return (None, errs);
+            }
+        }
+    }
+    (None, errs)
+}
+
 /// Checks a resolved table and builds the plan, or returns every error found.
 ///
 /// # Errors
-/// Deserialisation errors (unknown keys, wrong types) come one at a time from serde; graph and
-/// value errors all at once.
+/// Every error at once (wrong types, unknown keys, bad values, wiring), each with its full key.
 pub fn plan(table: toml::Table, origin: &str) -> Result<Plan, crate::Error> {
-    let raw: RawPipeline = toml::Value::Table(table.clone())
-        .try_into()
-        .map_err(|e: toml::de::Error| crate::Error::ConfigText(format!("{origin}: {}", e.to_string().trim())))?;
-    let mut errs: Vec<ConfigError> = Vec::new();
+    plan_from(table, &Origin::from(origin))
+}
+
+/// As [`plan`], each error saying where its value came from (file line or `--set`).
+///
+/// # Errors
+/// See [`plan`].
+pub fn plan_from(table: toml::Table, origin: &Origin) -> Result<Plan, crate::Error> {
+    let located = |errs| origin.errors(errs);
+    let (raw, type_errs) = deserialize_all::<RawPipeline>(&table);
+    let Some(raw) = raw else { return Err(located(type_errs)) };
+    plan_checked(raw, table, type_errs).map_err(|e| match e {
+        crate::Error::Config(errs) => located(errs),
+        e => e,
+    })
+}
+
+fn plan_checked(raw: RawPipeline, table: toml::Table, type_errs: Vec<ConfigError>) -> Result<Plan, crate::Error> {
+    let mut errs: Vec<ConfigError> = type_errs;
     let err = |key: String, message: String| ConfigError { key, message };
     if raw.sources.len() != 1 {
         errs.push(err("sources".into(), format!("needs exactly one source (found {})", raw.sources.len())));
@@ -717,7 +873,7 @@ pub fn expand_paths(paths: &[String], exts: &[&str]) -> Result<Vec<PathBuf>, cra
         let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
         if name.contains(['*', '?']) {
             let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-            let rd = std::fs::read_dir(dir).map_err(|e| crate::Error::Io { path: dir.to_path_buf(), source: e })?;
+            let rd = std::fs::read_dir(dir).map_err(|e| crate::Error::Io { path: dir.to_path_buf(), cause: e })?;
             let before = out.len();
             for e in rd.flatten() {
                 let n = e.file_name().to_string_lossy().into_owned();
@@ -729,7 +885,7 @@ pub fn expand_paths(paths: &[String], exts: &[&str]) -> Result<Vec<PathBuf>, cra
                 return Err(crate::Error::Invalid(format!("{p}: the pattern matches no file")));
             }
         } else if path.is_dir() {
-            let rd = std::fs::read_dir(&path).map_err(|e| crate::Error::Io { path: path.clone(), source: e })?;
+            let rd = std::fs::read_dir(&path).map_err(|e| crate::Error::Io { path: path.clone(), cause: e })?;
             for e in rd.flatten() {
                 let ext = e.path().extension().map(|x| x.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
                 if exts.contains(&ext.as_str()) {
@@ -807,6 +963,38 @@ inputs = ["blur"]
         for key in ["transforms.blur.window", "transforms.blur.optics.pupil_samples", "run.channel_capacity"] {
             assert!(e.contains(key), "{key} missing from: {e}");
         }
+    }
+
+    #[test]
+    fn type_errors_and_unknown_keys_all_come_in_one_pass_with_their_full_keys_and_origins() {
+        let text = include_str!("../pipelines/generate.toml").replace("per_window = 8", "per_window = \"eight\"");
+        let sets = vec!["transforms.blur.window=\"x\"".to_string(), "sinks.shards.colour=1".to_string()];
+        let mut t: toml::Table = toml::from_str(&text).unwrap();
+        apply_sets(&mut t, &sets).unwrap();
+        let origin = Origin::new("g.toml", Some(&text), &sets);
+        let Err(crate::Error::Config(errs)) = plan_from(t, &origin) else { panic!("must fail") };
+        let msgs: Vec<String> = errs.iter().map(|e| e.to_string()).collect();
+        let line = text.lines().position(|l| l.starts_with("per_window")).unwrap() + 1;
+        let want = [
+            ("sinks.shards.colour", "--set sinks.shards.colour=1".to_string()),
+            ("transforms.blur.window", "--set transforms.blur.window=\"x\"".to_string()),
+            ("transforms.patches.per_window", format!("g.toml line {line}")),
+        ];
+        assert_eq!(msgs.len(), 3, "{msgs:#?}");
+        for ((key, from), m) in want.iter().zip(&msgs) {
+            assert!(m.starts_with(&format!("{key}: ")) && m.ends_with(&format!("({from})")), "{m}");
+        }
+    }
+
+    #[test]
+    fn keys_are_found_on_their_lines() {
+        let t = "seed = 1\n[a]\nx = 1\n[a.b]\ny = 2\n[c]\ny = 3\n";
+        assert_eq!(line_of(t, "seed"), Some(1));
+        assert_eq!(line_of(t, "a.x"), Some(3));
+        assert_eq!(line_of(t, "a.b.y"), Some(5));
+        assert_eq!(line_of(t, "c.y"), Some(7));
+        assert_eq!(line_of(t, "c"), Some(6));
+        assert_eq!(line_of(t, "d.z"), None);
     }
 
     #[test]

@@ -253,7 +253,7 @@ pub fn video(
             }
         }
         let n = writer.finish().map_err(|e| name(output, e))?;
-        std::fs::rename(&tmp, output).map_err(|e| Error::Io { path: output.to_path_buf(), source: e })?;
+        std::fs::rename(&tmp, output).map_err(|e| Error::Io { path: output.to_path_buf(), cause: e })?;
         Ok(n)
     })();
     let frames = match result {
@@ -304,7 +304,7 @@ pub const IMAGE_EXTENSIONS: [&str; 6] = ["png", "jpg", "jpeg", "tif", "tiff", "e
 fn read_image(f: &Path, ext: &str) -> Result<(usize, usize, Vec<u8>)> {
     let bad = |e: String| Error::Invalid(format!("{}: {e}", f.display()));
     if ext == "png" {
-        let bytes = std::fs::read(f).map_err(|e| Error::Io { path: f.to_path_buf(), source: e })?;
+        let bytes = std::fs::read(f).map_err(|e| Error::Io { path: f.to_path_buf(), cause: e })?;
         return png_io::read_rgb8(&bytes).map_err(bad);
     }
     #[cfg(feature = "ffmpeg")]
@@ -334,7 +334,7 @@ fn write_image(dst: &Path, ext: &str, w: usize, h: usize, rgb: &[u8]) -> Result<
             let tmp = temp_for(dst);
             let res = crate::io::video::write_image(&tmp, w, h, rgb, codec)
                 .map_err(|e| Error::Invalid(format!("{}: {e}", dst.display())))
-                .and_then(|()| std::fs::rename(&tmp, dst).map_err(|e| Error::Io { path: dst.to_path_buf(), source: e }));
+                .and_then(|()| std::fs::rename(&tmp, dst).map_err(|e| Error::Io { path: dst.to_path_buf(), cause: e }));
             if res.is_err() {
                 let _ = std::fs::remove_file(&tmp);
             }
@@ -359,7 +359,7 @@ pub fn images(net: &FastNet, model_name: &str, input: &Path, output: &Path, tili
     if files.is_empty() {
         return Err(Error::Usage(format!("{}: no image found ({})", input.display(), IMAGE_EXTENSIONS.join(", "))));
     }
-    std::fs::create_dir_all(output).map_err(|e| Error::Io { path: output.to_path_buf(), source: e })?;
+    std::fs::create_dir_all(output).map_err(|e| Error::Io { path: output.to_path_buf(), cause: e })?;
     remove_stale(output);
     let bar = progress.then(|| progress_bar(files.len() as u64));
     let (mut w, mut h, mut done) = (0, 0, 0);

@@ -252,7 +252,7 @@ pub fn run(f: &EvalFile, net: &FastNet, model: &str, videos: &[String], out: &Pa
     let t0 = Instant::now();
     let e = &f.eval;
     let paths = expand_paths(videos, crate::graph::VIDEO_EXTS)?;
-    std::fs::create_dir_all(out.join("examples")).map_err(|err| Error::Io { path: out.to_path_buf(), source: err })?;
+    std::fs::create_dir_all(out.join("examples")).map_err(|err| Error::Io { path: out.to_path_buf(), cause: err })?;
     let camera = Arc::new(Camera::new(&f.optics, &f.camera));
     let sigma_scale = 1.0 / camera.light_throughput().max(1e-6);
     let maxn = *e.windows.iter().max().expect("validated non-empty");

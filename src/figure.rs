@@ -440,7 +440,7 @@ pub fn scores_markdown(r: &FigureReport) -> String {
 /// A model that is missing (spoke), an output that cannot be written.
 pub fn draw(name: FigureName, o: &FigureOptions, out: &Path) -> Result<FigureReport> {
     if let Some(dir) = out.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).map_err(|e| Error::Io { path: dir.to_path_buf(), source: e })?;
+        std::fs::create_dir_all(dir).map_err(|e| Error::Io { path: dir.to_path_buf(), cause: e })?;
     }
     let scores = match name {
         FigureName::PsfStrip => psf_strip(o, out)?,

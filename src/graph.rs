@@ -213,9 +213,9 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
         )));
     }
     let out_dir = plan.out_dir();
-    std::fs::create_dir_all(&out_dir).map_err(|e| Error::Io { path: out_dir.clone(), source: e })?;
+    std::fs::create_dir_all(&out_dir).map_err(|e| Error::Io { path: out_dir.clone(), cause: e })?;
     let probe = out_dir.join(format!(".write-test.{}", std::process::id()));
-    std::fs::write(&probe, b"").map_err(|e| Error::Io { path: out_dir.clone(), source: e })?;
+    std::fs::write(&probe, b"").map_err(|e| Error::Io { path: out_dir.clone(), cause: e })?;
     let _ = std::fs::remove_file(&probe);
 
     // Temporary files of killed runs on this machine (their process is gone) go first.
@@ -541,7 +541,7 @@ fn write_report(dir: &Path, opts: &RunOptions, stem: &str, r: &Report) -> Result
     let stem = if opts.task_count > 1 { format!("{stem}-{:05}-of-{:05}", opts.task_index, opts.task_count) } else { stem.to_string() };
     let bytes = serde_json::to_vec_pretty(r).expect("json");
     let runs = dir.join("reports");
-    std::fs::create_dir_all(&runs).map_err(|e| Error::Io { path: runs.clone(), source: e })?;
+    std::fs::create_dir_all(&runs).map_err(|e| Error::Io { path: runs.clone(), cause: e })?;
     crate::io::write_atomic(&runs.join(r.provenance.file_name(&stem)), |w| w.write_all(&bytes))?;
     crate::io::write_atomic(&dir.join(format!("{stem}.json")), |w| w.write_all(&bytes))
 }

@@ -237,7 +237,7 @@ pub struct Pair {
 /// # Errors
 /// See above.
 pub fn read_shard(path: &Path, want: Option<(usize, usize)>) -> Result<Vec<Pair>> {
-    let f = std::fs::File::open(path).map_err(|e| Error::Io { path: path.to_path_buf(), source: e })?;
+    let f = std::fs::File::open(path).map_err(|e| Error::Io { path: path.to_path_buf(), cause: e })?;
     let members = tar::read_all(std::io::BufReader::new(f)).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
     let mut out: Vec<Pair> = Vec::new();
     let mut cur: Option<(String, Option<Vec<u8>>, Option<Vec<u8>>, Option<u64>)> = None;
@@ -560,7 +560,7 @@ pub fn load_model(path: &Path, device: &Device) -> Result<(Net, Arch)> {
     } else {
         path
     };
-    let bytes = std::fs::read(path).map_err(|e| Error::Io { path: path.to_path_buf(), source: e })?;
+    let bytes = std::fs::read(path).map_err(|e| Error::Io { path: path.to_path_buf(), cause: e })?;
     load_model_bytes(&bytes, &path.display().to_string(), device)
 }
 
@@ -718,7 +718,7 @@ impl Trainer {
             return Err(Error::Config(errs));
         }
         let dir = PathBuf::from(&cfg.output.dir);
-        std::fs::create_dir_all(&dir).map_err(|e| Error::Io { path: dir.clone(), source: e })?;
+        std::fs::create_dir_all(&dir).map_err(|e| Error::Io { path: dir.clone(), cause: e })?;
         let fast = cfg.optim.engine == EngineKind::Fast;
         let device = if fast { Device::flex() } else { Device::flex().autodiff() };
         // Initial weights are a function of the config's seed alone.
@@ -731,18 +731,18 @@ impl Trainer {
         let mut history: (Vec<LossPoint>, Vec<ValPoint>) = (Vec::new(), Vec::new());
         if opts.resume {
             let lp = dir.join("latest.json");
-            let latest: Latest = serde_json::from_slice(&std::fs::read(&lp).map_err(|e| Error::Io { path: lp.clone(), source: e })?)
+            let latest: Latest = serde_json::from_slice(&std::fs::read(&lp).map_err(|e| Error::Io { path: lp.clone(), cause: e })?)
                 .map_err(|e| Error::Invalid(format!("{}: {e}", lp.display())))?;
             let mpath = dir.join(&latest.model);
             let (net, _) = load_model(&mpath, &device)?;
-            let bytes = std::fs::read(&mpath).map_err(|e| Error::Io { path: mpath.clone(), source: e })?;
+            let bytes = std::fs::read(&mpath).map_err(|e| Error::Io { path: mpath.clone(), cause: e })?;
             let ids: Vec<u64> = read_meta(&bytes)
                 .ok()
                 .and_then(|m| m["param_ids"].as_str().and_then(|s| serde_json::from_str(s).ok()))
                 .ok_or_else(|| Error::Invalid(format!("{}: no param_ids in the metadata; cannot resume the optimizer", mpath.display())))?;
             model = net.map(&mut IdSetter { ids, next: 0 });
             let op = dir.join(&latest.optimizer);
-            optim_bytes = Some((op.clone(), std::fs::read(&op).map_err(|e| Error::Io { path: op, source: e })?));
+            optim_bytes = Some((op.clone(), std::fs::read(&op).map_err(|e| Error::Io { path: op, cause: e })?));
             start = latest.step;
             // The history of the steps before the checkpoint, from the report of the run that
             // wrote it (a run stopped before writing one resumes without it).
@@ -875,6 +875,27 @@ impl Trainer {
         Ok(())
     }
 
+    /// Saves a checkpoint at the current step (unless one was just saved) and the report; the
+    /// error to stop with, which says how to continue.
+    fn checkpoint_and_stop(&mut self) -> Error {
+        let done = self.step;
+        let saved = done % self.cfg.output.checkpoint_every == 0;
+        let res = if saved {
+            Ok(())
+        } else {
+            self.engine
+                .optim_bytes()
+                .and_then(|o| save_checkpoint(&self.dir, &self.engine.net(), o, &self.cfg, done).map(|_| ()))
+                .and_then(|()| self.write_report().map(|_| ()))
+        };
+        match res {
+            Ok(()) => {
+                Error::Invalid(format!("interrupted after step {done}: checkpoint saved in {}; continue with --resume", self.dir.display()))
+            }
+            Err(e) => e,
+        }
+    }
+
     /// The report of the run so far.
     fn report(&self) -> TrainReport {
         TrainReport {
@@ -965,9 +986,14 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
     for _ in 0..t.step * cfg.optim.batch {
         stream.next()?;
     }
+    crate::signal::install();
     while !t.done() {
         let batch: Vec<Pair> = (0..cfg.optim.batch).map(|_| stream.next()).collect::<Result<_>>()?;
         t.train_step(&batch)?;
+        if crate::signal::interrupted() {
+            // SIGTERM (Slurm preemption, a time limit) or Ctrl-C: keep every finished step.
+            return Err(t.checkpoint_and_stop());
+        }
     }
     t.finish()
 }

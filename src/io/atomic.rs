@@ -120,7 +120,7 @@ where
     })();
     if let Err(e) = res {
         let _ = std::fs::remove_file(&tmp);
-        return Err(crate::Error::Io { path: path.to_path_buf(), source: e });
+        return Err(crate::Error::Io { path: path.to_path_buf(), cause: e });
     }
     Ok(())
 }

@@ -218,7 +218,7 @@ impl Manifest {
                 .map(Some)
                 .map_err(|e| crate::Error::Invalid(format!("{}: not a pipeline manifest ({e})", p.display()))),
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-            Err(e) => Err(crate::Error::Io { path: p, source: e }),
+            Err(e) => Err(crate::Error::Io { path: p, cause: e }),
         }
     }
 
@@ -231,8 +231,8 @@ impl Manifest {
     pub fn update(dir: &Path, name: &str, empty: Manifest, change: impl FnOnce(&mut Manifest)) -> crate::Result<Manifest> {
         let lp = dir.join(format!(".{name}.lock"));
         let lock = std::fs::OpenOptions::new().create(true).truncate(false).write(true).open(&lp);
-        let lock = lock.map_err(|e| crate::Error::Io { path: lp.clone(), source: e })?;
-        lock.lock().map_err(|e| crate::Error::Io { path: lp.clone(), source: e })?;
+        let lock = lock.map_err(|e| crate::Error::Io { path: lp.clone(), cause: e })?;
+        lock.lock().map_err(|e| crate::Error::Io { path: lp.clone(), cause: e })?;
         let mut m = Manifest::load(dir, name)?.unwrap_or(empty);
         change(&mut m);
         m.inputs.sort_by(|a, b| a.path.cmp(&b.path).then(a.key.cmp(&b.key)));
@@ -324,12 +324,12 @@ impl Shards {
         if cur.open.as_ref().is_some_and(|o| o.samples >= max) {
             let o = cur.open.take().expect("checked");
             let tmp = o.tmp.clone();
-            cur.closed.push(o.close().map_err(|e| crate::Error::Io { path: tmp, source: e })?);
+            cur.closed.push(o.close().map_err(|e| crate::Error::Io { path: tmp, cause: e })?);
         }
         if cur.open.is_none() {
             let name = format!("{prefix}-{}-{:04}.tar", cur.input.key, cur.closed.len());
             let tmp = dir.join(crate::io::temp_name(&name, None));
-            let f = File::create(&tmp).map_err(|e| crate::Error::Io { path: tmp.clone(), source: e })?;
+            let f = File::create(&tmp).map_err(|e| crate::Error::Io { path: tmp.clone(), cause: e })?;
             cur.open = Some(OpenShard { tmp, name, w: BufWriter::new(f), crc: crc32fast::Hasher::new(), bytes: 0, samples: 0 });
         }
         let o = cur.open.as_mut().expect("opened");
@@ -339,7 +339,7 @@ impl Shards {
             o.append(&format!("{key}.gt.png"), &png_bytes(&p.gt, p.w, p.h, s.curve))?;
             o.append(&format!("{key}.json"), &meta_json(s, p))
         })();
-        res.map_err(|e| crate::Error::Io { path: o.tmp.clone(), source: e })?;
+        res.map_err(|e| crate::Error::Io { path: o.tmp.clone(), cause: e })?;
         o.samples += 1;
         cur.samples += 1;
         Ok(())
@@ -370,14 +370,14 @@ impl Shards {
                     cur.open = None;
                     self.cur = Some(cur);
                     self.discard();
-                    return Err(crate::Error::Io { path: tmp, source: e });
+                    return Err(crate::Error::Io { path: tmp, cause: e });
                 }
             }
         }
         let mut shards = Vec::new();
         for (tmp, sh) in cur.closed {
             let fin = self.dir.join(&sh.name);
-            std::fs::rename(&tmp, &fin).map_err(|e| crate::Error::Io { path: fin, source: e })?;
+            std::fs::rename(&tmp, &fin).map_err(|e| crate::Error::Io { path: fin, cause: e })?;
             shards.push(sh);
         }
         let entry = ManifestInput {
@@ -501,7 +501,7 @@ impl Frames {
         };
         for (sub, img) in [(lq_dir, &p.lq), (gt_dir, &p.gt)] {
             let d = base.join(sub);
-            std::fs::create_dir_all(&d).map_err(|e| crate::Error::Io { path: d.clone(), source: e })?;
+            std::fs::create_dir_all(&d).map_err(|e| crate::Error::Io { path: d.clone(), cause: e })?;
             let path = d.join(format!("{name}.{ext}"));
             match self.format {
                 ImageFormat::Png => {

@@ -59,6 +59,14 @@ fn config_errors_name_the_key_and_write_nothing() {
     fails_naming(&o, "transforms.noise.sigma");
     fails_naming(&o, "transforms.blur.window");
     assert_eq!(o.status.code(), Some(2));
+    // Type errors too, all at once, each with its full key and the --set that gave it.
+    let o = generate(&out, &[FIXTURE], &["transforms.blur.window=\"x\"", "sinks.shards.max_samples_per_shard=-3"]);
+    assert_eq!(o.status.code(), Some(2));
+    fails_naming(&o, "transforms.blur.window: invalid type: string \"x\", expected usize (--set transforms.blur.window=\"x\")");
+    fails_naming(
+        &o,
+        "sinks.shards.max_samples_per_shard: invalid value: integer `-3`, expected usize (--set sinks.shards.max_samples_per_shard=-3)",
+    );
     assert!(files(&out).is_empty(), "{:?}", files(&out));
 }
 

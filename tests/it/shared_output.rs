@@ -270,3 +270,53 @@ fn stale_temporaries_of_a_killed_run_are_removed_at_the_next_start() {
     let r: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join("report.json")).unwrap()).unwrap();
     assert_eq!(r["stale_removed"].as_array().unwrap().len(), 2);
 }
+
+/// Starts `pipeline` with `args`, sends SIGTERM after `ms`, returns its output.
+#[cfg(feature = "train")]
+fn terminated(args: &[&str], ms: u64) -> std::process::Output {
+    let child = bin().args(args).stderr(std::process::Stdio::piped()).spawn().unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(ms));
+    std::process::Command::new("kill").args(["-TERM", &child.id().to_string()]).status().unwrap();
+    child.wait_with_output().unwrap()
+}
+
+#[cfg(feature = "train")]
+#[test]
+fn sigterm_stops_deblur_without_leaving_a_partial_video() {
+    let d = scratch("shared_deblur_term");
+    let out = d.join("sharp.mp4");
+    // The fixture takes many seconds to deblur; the signal lands early.
+    let o = terminated(&["deblur", FIXTURE, "-o", out.to_str().unwrap(), "--progress", "never"], 1500);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("interrupted"), "{}", stderr(&o));
+    assert!(!out.exists() && temporaries(&d).is_empty(), "{:?}", files(&d));
+}
+
+#[cfg(feature = "train")]
+#[test]
+fn sigterm_stops_training_with_a_checkpoint_to_resume_from() {
+    let d = scratch("shared_train_term");
+    let shards = d.join("shards");
+    ok(&generate(&shards, &[FIXTURE], &[SHORT]));
+    let run = d.join("run");
+    let cfg = concat!(env!("CARGO_MANIFEST_DIR"), "/pipelines/train-shallow.toml");
+    let sets = [
+        format!("data.shards=[\"{}\"]", shards.display()),
+        format!("output.dir=\"{}\"", run.display()),
+        "optim.steps=1000000".into(),
+        "output.checkpoint_every=1000000".into(),
+        "validate.every=1000000".into(),
+        "data.val_fraction=0.0".into(),
+    ];
+    let mut args = vec!["train", "--config", cfg, "--progress", "never"];
+    for s in &sets {
+        args.extend(["--set", s.as_str()]);
+    }
+    let o = terminated(&args, 3000);
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    let step: usize = e.split("interrupted after step ").nth(1).and_then(|r| r.split(':').next()).and_then(|n| n.parse().ok()).expect(&e);
+    let latest: serde_json::Value = serde_json::from_slice(&std::fs::read(run.join("latest.json")).unwrap()).unwrap();
+    assert_eq!(latest["step"], step);
+    assert!(run.join(latest["model"].as_str().unwrap()).exists() && temporaries(&run).is_empty());
+}
