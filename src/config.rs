@@ -17,289 +17,11 @@
 //! inputs = ["blur"]
 //! ```
 
-use crate::optics::config::Checker;
-use crate::optics::transfer::Curve;
-use crate::optics::{CameraConfig, ConfigError, OpticsConfig};
+use crate::optics::ConfigError;
+use crate::stage::{Role, StageKind};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-
-fn default_paths() -> Vec<String> {
-    Vec::new()
-}
-
-/// `type = "decode"`: video files FFmpeg reads.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct DecodeConfig {
-    /// Files, folders (their video files) or file-name globs (`clips/*.mp4`).
-    #[serde(default = "default_paths")]
-    pub paths: Vec<String>,
-    /// Stop each video after this many frames (0: all).
-    #[serde(default)]
-    pub max_frames: u64,
-}
-
-/// `type = "stills"`: renders high-frame-rate clips from still photographs (or a procedural
-/// texture when `paths` is empty) with seeded camera shake and independently moving layers.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct StillsConfig {
-    /// PNG files or folders of them; empty: procedural textures (`clips` of them).
-    pub paths: Vec<String>,
-    /// Procedural clips when `paths` is empty.
-    pub clips: usize,
-    /// Frames rendered per clip.
-    pub frames: u64,
-    /// Nominal frame rate written to the report.
-    pub fps: f64,
-    /// Output frame size [width, height]; for photos, the centre crop (0: the photo's size).
-    pub size: [usize; 2],
-    /// Standard deviation of the camera's velocity change per frame, pixels.
-    pub shake_px: f64,
-    /// Moving layers pasted over the background.
-    pub layers: usize,
-    /// Largest layer speed, pixels per frame.
-    pub layer_speed_px: f64,
-    /// Largest steady camera (pan) speed, pixels per frame: each clip draws a speed uniformly
-    /// from [0, this] in a random direction, on top of the shake (0: shake only).
-    pub pan_px: f64,
-}
-
-impl Default for StillsConfig {
-    fn default() -> Self {
-        StillsConfig {
-            paths: Vec::new(),
-            clips: 2,
-            frames: 36,
-            fps: 240.0,
-            size: [256, 192],
-            shake_px: 0.15,
-            layers: 3,
-            layer_speed_px: 2.0,
-            pan_px: 0.0,
-        }
-    }
-}
-
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(tag = "type", rename_all = "snake_case")]
-pub enum SourceConfig {
-    Decode(DecodeConfig),
-    Stills(StillsConfig),
-    Scene(SceneSourceConfig),
-}
-
-/// `type = "scene"`: the synthetic moving scenes of the paper's comparison figures (moving
-/// dots, rotating spoke target), `clips` exposures of `frames` sub-frames each.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-pub struct SceneSourceConfig {
-    pub scene: crate::scene::SceneKind,
-    /// [width, height]
-    pub size: [usize; 2],
-    /// Sub-frames per clip (one exposure).
-    pub frames: usize,
-    /// Travel over the clip of the fastest dot or the spoke target's rim, pixels.
-    pub travel_px: f64,
-    pub dots_per_arm: usize,
-    pub spokes: usize,
-    pub clips: usize,
-    /// Nominal frame rate written to the report.
-    pub fps: f64,
-}
-
-impl Default for SceneSourceConfig {
-    fn default() -> Self {
-        let p = crate::scene::SceneParams::default();
-        SceneSourceConfig {
-            scene: p.kind,
-            size: [p.width, p.height],
-            frames: p.frames,
-            travel_px: p.travel_px,
-            dots_per_arm: p.dots_per_arm,
-            spokes: p.spokes,
-            clips: 1,
-            fps: 240.0,
-        }
-    }
-}
-
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct LinearizeConfig {
-    pub inputs: Vec<String>,
-    #[serde(default = "default_curve")]
-    pub curve: Curve,
-}
-
-fn default_curve() -> Curve {
-    Curve::Srgb
-}
-
-/// `type = "coded_blur"`: windows of N frames through a camera.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct BlurConfig {
-    pub inputs: Vec<String>,
-    /// Sub-frames per window (1 to 64).
-    #[serde(default = "default_window")]
-    pub window: usize,
-    /// Frames between window starts (default: the window, no overlap).
-    #[serde(default)]
-    pub stride: Option<usize>,
-    #[serde(default)]
-    pub camera: CameraConfig,
-    #[serde(default)]
-    pub optics: OpticsConfig,
-    /// Worker threads for the FFTs (0: all cores).
-    #[serde(default)]
-    pub threads: usize,
-    /// Relative error allowed when factorising the window's kernels into fewer FFTs
-    /// (0: exact, one direction per distinct kernel).
-    #[serde(default = "default_rank_tolerance")]
-    pub rank_tolerance: f64,
-}
-
-fn default_rank_tolerance() -> f64 {
-    1e-3
-}
-
-fn default_window() -> usize {
-    9
-}
-
-/// Noise sigma: fixed, or drawn per window from [low, high].
-#[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq)]
-#[serde(untagged)]
-pub enum Sigma {
-    Fixed(f64),
-    Range([f64; 2]),
-}
-
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct NoiseConfig {
-    pub inputs: Vec<String>,
-    /// AWGN sigma on the 0-255 scale, added after re-encoding, before clipping and quantising.
-    #[serde(default = "default_sigma")]
-    pub sigma: Sigma,
-}
-
-fn default_sigma() -> Sigma {
-    Sigma::Range([0.0, 9.0])
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Placement {
-    Random,
-    Grid,
-}
-
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct PatchesConfig {
-    pub inputs: Vec<String>,
-    #[serde(default = "default_patch")]
-    pub size: usize,
-    /// Patches per window (grid: at most this many; 0 with grid: all).
-    #[serde(default = "default_per_window")]
-    pub per_window: usize,
-    #[serde(default = "default_placement")]
-    pub placement: Placement,
-    /// Cut patches (plus the kernel margin) before blurring: the same pixels for less work.
-    #[serde(default = "default_true")]
-    pub crop_first: bool,
-}
-
-fn default_patch() -> usize {
-    128
-}
-fn default_per_window() -> usize {
-    8
-}
-fn default_placement() -> Placement {
-    Placement::Random
-}
-fn default_true() -> bool {
-    true
-}
-
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(tag = "type", rename_all = "snake_case")]
-pub enum TransformConfig {
-    Linearize(LinearizeConfig),
-    CodedBlur(BlurConfig),
-    Noise(NoiseConfig),
-    Patches(PatchesConfig),
-}
-
-/// `type = "shards"`: WebDataset tar shards plus `manifest.json`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct ShardsConfig {
-    pub inputs: Vec<String>,
-    #[serde(default = "default_dir")]
-    pub dir: String,
-    #[serde(default = "default_prefix")]
-    pub prefix: String,
-    #[serde(default = "default_max_samples")]
-    pub max_samples_per_shard: usize,
-}
-
-fn default_dir() -> String {
-    "out".into()
-}
-fn default_prefix() -> String {
-    "train".into()
-}
-fn default_max_samples() -> usize {
-    1000
-}
-
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum ImageFormat {
-    Png,
-    Exr,
-}
-
-/// `type = "frames"`: full-size pairs in the GoPro layout (`blur_gamma/`, `sharp/`).
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct FramesConfig {
-    pub inputs: Vec<String>,
-    #[serde(default = "default_dir")]
-    pub dir: String,
-    /// png: 8-bit encoded; exr: linear light, float.
-    #[serde(default = "default_format")]
-    pub format: ImageFormat,
-}
-
-fn default_format() -> ImageFormat {
-    ImageFormat::Png
-}
-
-/// `type = "blackhole"`: counts samples and drops them (benchmarks, dry runs).
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct BlackholeConfig {
-    pub inputs: Vec<String>,
-    #[serde(default = "default_dir")]
-    pub dir: String,
-}
-
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(tag = "type", rename_all = "snake_case")]
-pub enum SinkConfig {
-    Shards(ShardsConfig),
-    Frames(FramesConfig),
-    Blackhole(BlackholeConfig),
-    /// Train a network on the stream (feature `train`).
-    #[cfg(feature = "train")]
-    Trainer(crate::train::TrainerSinkConfig),
-}
 
 /// `[run]`: how the graph runs.
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -315,7 +37,7 @@ impl Default for RunConfig {
     }
 }
 
-/// A pipeline file as written.
+/// A pipeline file as written; each stage's config is its own type in `src/stage/`.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RawPipeline {
@@ -324,37 +46,11 @@ pub struct RawPipeline {
     #[serde(default)]
     pub run: RunConfig,
     #[serde(default)]
-    pub sources: BTreeMap<String, SourceConfig>,
+    pub sources: BTreeMap<String, StageKind>,
     #[serde(default)]
-    pub transforms: BTreeMap<String, TransformConfig>,
+    pub transforms: BTreeMap<String, StageKind>,
     #[serde(default)]
-    pub sinks: BTreeMap<String, SinkConfig>,
-}
-
-/// What flows on an edge; checked before any thread starts.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Kind {
-    EncodedFrames,
-    LinearFrames,
-    Samples,
-}
-
-impl Kind {
-    fn name(self) -> &'static str {
-        match self {
-            Kind::EncodedFrames => "encoded frames",
-            Kind::LinearFrames => "linear frames",
-            Kind::Samples => "samples",
-        }
-    }
-}
-
-/// One stage of a checked plan.
-#[derive(Debug, Clone)]
-pub enum StagePlan {
-    Source(SourceConfig),
-    Transform(TransformConfig),
-    Sink(SinkConfig),
+    pub sinks: BTreeMap<String, StageKind>,
 }
 
 /// A checked chain: source, transforms in order, sink.
@@ -363,51 +59,37 @@ pub struct Plan {
     pub seed: u64,
     pub run: RunConfig,
     /// (name, stage) from source to sink.
-    pub stages: Vec<(String, StagePlan)>,
+    pub stages: Vec<(String, StageKind)>,
     /// The resolved file, for the report.
     pub resolved: toml::Table,
 }
 
 impl Plan {
-    pub fn source(&self) -> &SourceConfig {
-        match &self.stages[0].1 {
-            StagePlan::Source(s) => s,
-            _ => unreachable!("a plan starts with its source"),
+    pub fn source(&self) -> &dyn crate::stage::StageConfig {
+        self.stages[0].1.config()
+    }
+    pub fn sink(&self) -> &dyn crate::stage::StageConfig {
+        self.stages.last().expect("non-empty plan").1.config()
+    }
+    /// What the stages after stage `i` need of each input.
+    pub fn needs_after(&self, i: usize) -> crate::stage::Needs {
+        self.stages[i + 1..].iter().map(|(_, s)| s.config().needs()).fold(crate::stage::Needs::default(), |a, b| a.max(b))
+    }
+    /// The patches stage `i` may cut first: when it takes them and the stages after it up to a
+    /// patch stage all work pixel by pixel.
+    pub fn crop_for(&self, i: usize) -> Option<crate::stage::patches::Selector> {
+        if !self.stages[i].1.config().takes_crop() {
+            return None;
         }
+        self.stages[i + 1..].iter().map(|(_, s)| s.config()).find(|c| !c.per_pixel()).and_then(|c| c.crop_selector())
     }
-    pub fn sink(&self) -> &SinkConfig {
-        match &self.stages.last().expect("non-empty plan").1 {
-            StagePlan::Sink(s) => s,
-            _ => unreachable!("a plan ends with its sink"),
-        }
-    }
-    pub fn sink_mut(&mut self) -> &mut SinkConfig {
-        match &mut self.stages.last_mut().expect("non-empty plan").1 {
-            StagePlan::Sink(s) => s,
-            _ => unreachable!("a plan ends with its sink"),
-        }
-    }
-    pub fn blur(&self) -> Option<&BlurConfig> {
-        self.stages.iter().find_map(|(_, s)| match s {
-            StagePlan::Transform(TransformConfig::CodedBlur(b)) => Some(b),
-            _ => None,
-        })
-    }
-    pub fn patches(&self) -> Option<&PatchesConfig> {
-        self.stages.iter().find_map(|(_, s)| match s {
-            StagePlan::Transform(TransformConfig::Patches(p)) => Some(p),
-            _ => None,
-        })
+    /// Sub-frames per window of the plan (0 without a blur).
+    pub fn subframes_per_window(&self) -> usize {
+        self.stages.iter().map(|(_, s)| s.config().subframes_per_window()).max().unwrap_or(0)
     }
     /// The output folder of the sink.
     pub fn out_dir(&self) -> PathBuf {
-        match self.sink() {
-            SinkConfig::Shards(s) => PathBuf::from(&s.dir),
-            SinkConfig::Frames(f) => PathBuf::from(&f.dir),
-            SinkConfig::Blackhole(b) => PathBuf::from(&b.dir),
-            #[cfg(feature = "train")]
-            SinkConfig::Trainer(t) => PathBuf::from(&t.dir),
-        }
+        PathBuf::from(self.sink().out_dir().unwrap_or("out"))
     }
     pub fn set_out_dir(&mut self, dir: &Path) {
         let d = dir.to_string_lossy().into_owned();
@@ -416,13 +98,7 @@ impl Plan {
         if let Some(toml::Value::Table(t)) = self.resolved.get_mut("sinks").and_then(|s| s.get_mut(&name)) {
             t.insert("dir".into(), toml::Value::String(d.clone()));
         }
-        match self.sink_mut() {
-            SinkConfig::Shards(s) => s.dir = d,
-            SinkConfig::Frames(f) => f.dir = d,
-            SinkConfig::Blackhole(b) => b.dir = d,
-            #[cfg(feature = "train")]
-            SinkConfig::Trainer(t) => t.dir = d,
-        }
+        self.stages.last_mut().expect("non-empty plan").1.config_mut().set_out_dir(d);
     }
 }
 
@@ -484,120 +160,6 @@ fn edit_distance(a: &str, b: &str) -> usize {
         prev = cur;
     }
     prev[b.len()]
-}
-
-fn inputs_of(t: &TransformConfig) -> &[String] {
-    match t {
-        TransformConfig::Linearize(c) => &c.inputs,
-        TransformConfig::CodedBlur(c) => &c.inputs,
-        TransformConfig::Noise(c) => &c.inputs,
-        TransformConfig::Patches(c) => &c.inputs,
-    }
-}
-
-fn sink_inputs(s: &SinkConfig) -> &[String] {
-    match s {
-        SinkConfig::Shards(c) => &c.inputs,
-        SinkConfig::Frames(c) => &c.inputs,
-        SinkConfig::Blackhole(c) => &c.inputs,
-        #[cfg(feature = "train")]
-        SinkConfig::Trainer(c) => &c.inputs,
-    }
-}
-
-fn check_transform(name: &str, t: &TransformConfig) -> Vec<ConfigError> {
-    let prefix = format!("transforms.{name}");
-    let mut c = Checker::new(&prefix);
-    match t {
-        TransformConfig::Linearize(_) => {}
-        TransformConfig::CodedBlur(b) => {
-            c.range_usize("window", b.window, 1, 64);
-            if let Some(s) = b.stride {
-                c.range_usize("stride", s, 1, 4096);
-            }
-            c.range_usize("threads", b.threads, 0, 256);
-            c.range("rank_tolerance", b.rank_tolerance, 0.0, 0.1);
-            c.errors.extend(b.camera.validate(&format!("{prefix}.camera")));
-            c.errors.extend(b.optics.validate(&format!("{prefix}.optics")));
-            if let Some(v) = &b.camera.psi_values {
-                if v.len() != b.window {
-                    c.fail("camera.psi_values", format!("has {} values but window is {}", v.len(), b.window));
-                }
-            }
-        }
-        TransformConfig::Noise(n) => match n.sigma {
-            Sigma::Fixed(s) => c.range("sigma", s, 0.0, 50.0),
-            Sigma::Range([a, b]) => {
-                c.range("sigma[0]", a, 0.0, 50.0);
-                c.range("sigma[1]", b, 0.0, 50.0);
-                if a > b {
-                    c.fail("sigma", format!("range [{a}, {b}] is reversed"));
-                }
-            }
-        },
-        TransformConfig::Patches(p) => {
-            c.range_usize("size", p.size, 8, 4096);
-            if p.placement == Placement::Random {
-                c.range_usize("per_window", p.per_window, 1, 4096);
-            }
-        }
-    }
-    c.errors
-}
-
-fn check_source(name: &str, s: &SourceConfig) -> Vec<ConfigError> {
-    let prefix = format!("sources.{name}");
-    let mut c = Checker::new(&prefix);
-    match s {
-        SourceConfig::Decode(_) => {}
-        SourceConfig::Scene(sc) => {
-            c.range_usize("frames", sc.frames, 1, 100_000);
-            c.range_usize("clips", sc.clips, 1, 100_000);
-            c.range("travel_px", sc.travel_px, 0.0, 1000.0);
-            c.range_usize("spokes", sc.spokes, 1, 1000);
-            c.range_usize("dots_per_arm", sc.dots_per_arm, 1, 1000);
-            c.range("fps", sc.fps, 1.0, 100_000.0);
-            for (i, v) in sc.size.iter().enumerate() {
-                c.range_usize(&format!("size[{i}]"), *v, 16, 8192);
-            }
-        }
-        SourceConfig::Stills(st) => {
-            c.range_usize("frames", st.frames as usize, 1, 1_000_000);
-            c.range("fps", st.fps, 1.0, 100_000.0);
-            c.range("shake_px", st.shake_px, 0.0, 50.0);
-            c.range_usize("layers", st.layers, 0, 64);
-            c.range("layer_speed_px", st.layer_speed_px, 0.0, 100.0);
-            c.range("pan_px", st.pan_px, 0.0, 100.0);
-            if st.paths.is_empty() {
-                c.range_usize("clips", st.clips, 1, 100_000);
-                for (i, v) in st.size.iter().enumerate() {
-                    c.range_usize(&format!("size[{i}]"), *v, 16, 8192);
-                }
-            }
-        }
-    }
-    c.errors
-}
-
-fn check_sink(name: &str, s: &SinkConfig) -> Vec<ConfigError> {
-    let prefix = format!("sinks.{name}");
-    let mut c = Checker::new(&prefix);
-    match s {
-        SinkConfig::Shards(sh) => {
-            c.range_usize("max_samples_per_shard", sh.max_samples_per_shard, 1, 10_000_000);
-            if sh.prefix.is_empty() || sh.prefix.contains(['/', '.']) {
-                c.fail("prefix", format!("{:?} must be non-empty, without '/' or '.'", sh.prefix));
-            }
-        }
-        SinkConfig::Frames(_) | SinkConfig::Blackhole(_) => {}
-        #[cfg(feature = "train")]
-        SinkConfig::Trainer(t) => {
-            for e in t.to_train_config(0).validate() {
-                c.fail(&e.key, e.message);
-            }
-        }
-    }
-    c.errors
 }
 
 /// Where the values of a pipeline came from: a file (its text, for line numbers) and the
@@ -776,14 +338,20 @@ fn plan_checked(raw: RawPipeline, table: toml::Table, type_errs: Vec<ConfigError
     if !(1..=1024).contains(&raw.run.channel_capacity) {
         errs.push(err("run.channel_capacity".into(), format!("{} is out of range (expected 1 to 1024)", raw.run.channel_capacity)));
     }
-    for (n, s) in &raw.sources {
-        errs.extend(check_source(n, s));
-    }
-    for (n, t) in &raw.transforms {
-        errs.extend(check_transform(n, t));
-    }
-    for (n, s) in &raw.sinks {
-        errs.extend(check_sink(n, s));
+    // Each stage under the table of its role, with its own checks.
+    for (table_name, stages, role) in
+        [("sources", &raw.sources, Role::Source), ("transforms", &raw.transforms, Role::Transform), ("sinks", &raw.sinks, Role::Sink)]
+    {
+        for (n, s) in stages {
+            let c = s.config();
+            if c.role() != role {
+                errs.push(err(
+                    format!("{table_name}.{n}.type"),
+                    format!("a {} stage belongs under [{}.{n}]", c.role().table(), c.role().table()),
+                ));
+            }
+            errs.extend(c.validate(&format!("{table_name}.{n}")));
+        }
     }
     // Wiring: every input names a stage; each stage feeds at most one other (a chain).
     let names: Vec<&String> = raw.sources.keys().chain(raw.transforms.keys()).chain(raw.sinks.keys()).collect();
@@ -791,8 +359,8 @@ fn plan_checked(raw: RawPipeline, table: toml::Table, type_errs: Vec<ConfigError
     let edges: Vec<(String, &[String])> = raw
         .transforms
         .iter()
-        .map(|(n, t)| (format!("transforms.{n}"), inputs_of(t)))
-        .chain(raw.sinks.iter().map(|(n, s)| (format!("sinks.{n}"), sink_inputs(s))))
+        .map(|(n, t)| (format!("transforms.{n}"), t.config().inputs()))
+        .chain(raw.sinks.iter().map(|(n, s)| (format!("sinks.{n}"), s.config().inputs())))
         .collect();
     for (key, inputs) in &edges {
         let short = key.split_once('.').map_or(key.as_str(), |(_, n)| n);
@@ -812,10 +380,10 @@ fn plan_checked(raw: RawPipeline, table: toml::Table, type_errs: Vec<ConfigError
         }
     }
     // Follow the chain from the source.
-    let mut stages: Vec<(String, StagePlan)> = Vec::new();
+    let mut stages: Vec<(String, StageKind)> = Vec::new();
     if errs.is_empty() {
         let (sname, src) = raw.sources.iter().next().expect("one source");
-        stages.push((sname.clone(), StagePlan::Source(src.clone())));
+        stages.push((sname.clone(), src.clone()));
         let mut cur = sname.clone();
         let mut seen = std::collections::BTreeSet::new();
         while let Some(next) = consumer.get(&cur) {
@@ -824,9 +392,9 @@ fn plan_checked(raw: RawPipeline, table: toml::Table, type_errs: Vec<ConfigError
                 break;
             }
             if let Some(t) = raw.transforms.get(next) {
-                stages.push((next.clone(), StagePlan::Transform(t.clone())));
+                stages.push((next.clone(), t.clone()));
             } else if let Some(s) = raw.sinks.get(next) {
-                stages.push((next.clone(), StagePlan::Sink(s.clone())));
+                stages.push((next.clone(), s.clone()));
                 break;
             }
             cur = next.clone();
@@ -834,22 +402,15 @@ fn plan_checked(raw: RawPipeline, table: toml::Table, type_errs: Vec<ConfigError
         let reached: Vec<&String> = stages.iter().map(|(n, _)| n).collect();
         for n in raw.transforms.keys().chain(raw.sinks.keys()) {
             if !reached.contains(&n) && errs.is_empty() {
-                errs.push(err(format!("{n}"), "is not connected to the source (a cycle or a dangling stage)".into()));
+                errs.push(err(n.to_string(), "is not connected to the source (a cycle or a dangling stage)".into()));
             }
         }
-        // Types along the chain.
-        let mut kind = Kind::EncodedFrames;
+        // Kinds along the chain.
+        let mut kind = stages[0].1.config().kinds().1;
         for (name, st) in stages.iter().skip(1) {
-            let (want, out): (&[Kind], Kind) = match st {
-                StagePlan::Transform(TransformConfig::Linearize(_)) => (&[Kind::EncodedFrames], Kind::LinearFrames),
-                StagePlan::Transform(TransformConfig::CodedBlur(_)) => (&[Kind::LinearFrames], Kind::Samples),
-                StagePlan::Transform(TransformConfig::Noise(_)) => (&[Kind::Samples], Kind::Samples),
-                StagePlan::Transform(TransformConfig::Patches(_)) => (&[Kind::Samples], Kind::Samples),
-                StagePlan::Sink(_) => (&[Kind::Samples], Kind::Samples),
-                StagePlan::Source(_) => unreachable!("one source"),
-            };
-            if !want.contains(&kind) {
-                errs.push(err(name.clone(), format!("data type mismatch: gets {} (expects {})", kind.name(), want[0].name())));
+            let (want, out) = st.config().kinds();
+            if want != kind {
+                errs.push(err(name.clone(), format!("data type mismatch: gets {} (expects {})", kind.name(), want.name())));
                 break;
             }
             kind = out;
@@ -1029,8 +590,12 @@ inputs = ["blur"]
     #[test]
     fn sets_parse_values_as_toml() {
         let p = plan_of(GOOD, &["transforms.blur.window=11", "transforms.blur.camera.type=conventional"]).unwrap();
-        assert_eq!(p.blur().unwrap().window, 11);
-        assert_eq!(p.blur().unwrap().camera.kind, crate::optics::CameraKind::Conventional);
+        let blur = p.stages.iter().find_map(|(_, s)| match s {
+            StageKind::CodedBlur(b) => Some(b),
+            _ => None,
+        });
+        assert_eq!(blur.unwrap().window, 11);
+        assert_eq!(blur.unwrap().camera.kind, crate::optics::CameraKind::Conventional);
     }
 
     #[test]

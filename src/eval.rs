@@ -10,6 +10,8 @@
 use crate::config::expand_paths;
 use crate::deblur::{run_frame, Tiling};
 use crate::frame::Frame;
+use crate::imaging::blur::Blurrer;
+use crate::imaging::{read_out, to_8bit};
 use crate::io::video::VideoReader;
 use crate::io::write_atomic;
 use crate::metrics::{quality, Quality};
@@ -19,9 +21,6 @@ use crate::optics::transfer::{Curve, Encoder};
 use crate::optics::{Camera, CameraConfig, ConfigError, OpticsConfig};
 use crate::plot::{Canvas, Panel};
 use crate::rng::{hash, hash_str};
-use crate::stage::blur::Blurrer;
-use crate::stage::noise::quantise;
-use crate::stage::Linearize;
 use crate::{Error, Result};
 use serde::{Deserialize, Serialize};
 use std::path::Path;
@@ -230,13 +229,12 @@ fn side_by_side(path: &Path, w: usize, h: usize, panels: [&[u8]; 3], labels: [St
 fn read_frames(path: &Path, first: u64, last: u64, curve: Curve) -> Result<Vec<Arc<Frame>>> {
     let name = |e: String| Error::Invalid(format!("{}: {e}", path.display()));
     let mut reader = VideoReader::open(path).map_err(name)?;
-    let lin = Linearize::new(curve);
     let mut out = Vec::new();
     let mut i = 0u64;
     while i <= last {
         let Some(f) = reader.next_frame().map_err(name)? else { break };
         if i >= first {
-            out.push(Arc::new(lin.apply(&f)));
+            out.push(Arc::new(Frame { curve: Some(curve), ..f }));
         }
         i += 1;
     }
@@ -251,10 +249,10 @@ fn read_frames(path: &Path, first: u64, last: u64, curve: Curve) -> Result<Vec<A
 pub fn run(f: &EvalFile, net: &FastNet, model: &str, videos: &[String], out: &Path, progress: bool) -> Result<EvalReport> {
     let t0 = Instant::now();
     let e = &f.eval;
-    let paths = expand_paths(videos, crate::graph::VIDEO_EXTS)?;
+    let paths = expand_paths(videos, crate::stage::input::VIDEO_EXTS)?;
     std::fs::create_dir_all(out.join("examples")).map_err(|err| Error::Io { path: out.to_path_buf(), cause: err })?;
     let camera = Arc::new(Camera::new(&f.optics, &f.camera));
-    let sigma_scale = 1.0 / camera.light_throughput().max(1e-6);
+    let throughput = camera.light_throughput();
     let maxn = *e.windows.iter().max().expect("validated non-empty");
     let half = (maxn / 2) as u64;
     let spacing = if e.spacing == 0 { maxn } else { e.spacing } as u64;
@@ -294,13 +292,13 @@ pub fn run(f: &EvalFile, net: &FastNet, model: &str, videos: &[String], out: &Pa
         let centres = (0..e.windows_per_video as u64).map(|k| half + k * spacing).take_while(|&c| c + half < frames.len() as u64);
         for c in centres {
             let mid = &frames[c as usize];
-            let sharp = quantise(&mid.linear_crop(rx, ry, rw, rh), rw, rh, rx, ry, &enc, 0.0, 0);
+            let sharp = to_8bit(&mid.linear_crop(rx, ry, rw, rh), rw, rh, e.curve);
             for (ni, &n) in e.windows.iter().enumerate() {
                 let start = (c - (n / 2) as u64) as usize;
                 let blur = blurrers[ni].blur_region(&frames[start..start + n], rx as isize, ry as isize, rw, rh);
                 let key = hash(&[f.seed, vi as u64, first + c, n as u64, hash_str("eval-noise")]);
                 for &sigma in &e.sigmas {
-                    let blurred = quantise(&blur, rw, rh, rx, ry, &enc, sigma * sigma_scale, key);
+                    let blurred = read_out(&blur, (rx, ry, rw, rh), &enc, sigma, throughput, key);
                     let deblurred = run_frame(net, &blurred, rw, rh, tiling);
                     let (qb, qd) = (quality(&blurred, &sharp, rw, rh), quality(&deblurred, &sharp, rw, rh));
                     let example = (examples_left > 0 && sigma == top_sigma).then(|| {

@@ -14,6 +14,7 @@
 //! brought to the same brightness, gets `sigma / 0.5` (it collects half the light).
 
 use crate::frame::{Frame, FrameData};
+use crate::imaging::blur::Blurrer;
 use crate::io::write_atomic;
 use crate::metrics::{quality, Quality};
 use crate::optics::config::Axis;
@@ -23,8 +24,6 @@ use crate::plot::{Canvas, Panel};
 use crate::recon::{lucy_richardson, Ends, FlutterSolver};
 use crate::rng::{hash, hash_str};
 use crate::scene::{SceneKind, SceneParams};
-use crate::stage::blur::Blurrer;
-use crate::stage::noise::quantise;
 use crate::{Error, Result};
 use rustfft::num_complex::Complex64;
 use std::path::{Path, PathBuf};
@@ -137,23 +136,21 @@ fn compose(path: &Path, title: &str, panels: &[Panel], cols: usize, scale: usize
 }
 
 /// Sums the sub-frames through a camera (linear light), re-encodes and adds noise: the 8-bit
-/// capture and the sigma used.
+/// capture and the sigma that reached it (scaled by the camera's light throughput).
 fn capture(frames: &[[Vec<f32>; 3]], w: usize, h: usize, cam: &Arc<Camera>, sigma: f64, key: u64) -> Result<(Vec<u8>, f64)> {
-    let sigma = sigma / cam.light_throughput();
-    let n = frames.len();
     let lin: Vec<Arc<Frame>> =
         frames.iter().map(|p| Arc::new(Frame { curve: Some(Curve::Identity), ..Frame::new(w, h, FrameData::Planar(p.clone())) })).collect();
-    let mut b = Blurrer::new(cam.clone(), n, 0, 1e-3)?;
-    let planes = b.blur_region(&lin, 0, 0, w, h);
-    Ok((quantise(&planes, w, h, 0, 0, &Encoder::new(Curve::Srgb), sigma, key), sigma))
+    let mut b = Blurrer::new(cam.clone(), frames.len(), 0, 1e-3)?;
+    let rgb = crate::imaging::capture(&mut b, &lin, (0, 0, w, h), &Encoder::new(Curve::Srgb), sigma, key);
+    Ok((rgb, crate::imaging::sensor_sigma(sigma, cam.light_throughput())))
 }
 
 fn encode(p: &[Vec<f32>; 3], w: usize, h: usize) -> Vec<u8> {
-    quantise(p, w, h, 0, 0, &Encoder::new(Curve::Srgb), 0.0, 0)
+    crate::imaging::to_8bit(p, w, h, Curve::Srgb)
 }
 
 fn linear(rgb: &[u8]) -> [Vec<f32>; 3] {
-    std::array::from_fn(|c| rgb.iter().skip(c).step_by(3).map(|&v| Curve::Srgb.to_linear(v as f64 / 255.0) as f32).collect())
+    crate::imaging::from_8bit(rgb, rgb.len() / 3, 1, Curve::Srgb)
 }
 
 /// Fig. 2: a point moving right over the exposure, per camera.

@@ -4,15 +4,10 @@
 //! bars on a terminal, a plain line every few seconds otherwise. `report.json` is written to
 //! the output folder.
 
-use crate::config::{Plan, SinkConfig, SourceConfig, StagePlan, TransformConfig};
+use crate::config::Plan;
 use crate::frame::{Input, Item};
-use crate::optics::Camera;
-use crate::stage::blur::{Blurrer, CodedBlur};
-use crate::stage::noise::Noise;
-use crate::stage::patches::{Patches, Selector};
-use crate::stage::shards::{content_hash, Blackhole, Frames, Manifest, Shards};
-use crate::stage::source::{input_key, Needs, Stills};
-use crate::stage::{Counters, Emit, Linearize, Sink, Source, StageError, Transform};
+use crate::stage::shards::content_hash;
+use crate::stage::{input_key, BuildContext, Built, Counters, Emit, InputList, Sink, Source, StageError, Transform};
 use crate::{Error, Result};
 use crossbeam_channel::{bounded, Receiver, RecvTimeoutError};
 use serde::Serialize;
@@ -100,19 +95,14 @@ pub struct Report {
     pub config: serde_json::Value,
 }
 
-/// File extensions taken from a folder of videos.
-pub const VIDEO_EXTS: &[&str] = &["mp4", "mkv", "mov", "avi", "webm", "m4v", "mts", "ts", "y4m", "nut"];
-
 /// The inputs of the plan's source, sorted, each with its global index.
 ///
 /// # Errors
 /// A path that does not exist as a folder or pattern.
 pub fn list_inputs(plan: &Plan) -> Result<Vec<(Arc<Input>, Option<PathBuf>)>> {
-    let paths: Vec<Option<PathBuf>> = match plan.source() {
-        SourceConfig::Decode(d) => crate::config::expand_paths(&d.paths, VIDEO_EXTS)?.into_iter().map(Some).collect(),
-        SourceConfig::Stills(s) if s.paths.is_empty() => (0..s.clips).map(|_| None).collect(),
-        SourceConfig::Scene(s) => (0..s.clips).map(|_| None).collect(),
-        SourceConfig::Stills(s) => crate::config::expand_paths(&s.paths, &["png"])?.into_iter().map(Some).collect(),
+    let paths: Vec<Option<PathBuf>> = match plan.source().list()? {
+        InputList::Files(f) => f.into_iter().map(Some).collect(),
+        InputList::Procedural(n) => (0..n).map(|_| None).collect(),
     };
     Ok(paths
         .into_iter()
@@ -209,9 +199,10 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
     if all.is_empty() {
         return Err(Error::Usage(format!(
             "no input: the source's paths name no file it reads; give videos ({}) or folders of them on the command line, or set sources.*.paths",
-            VIDEO_EXTS.join(", ")
+            crate::stage::input::VIDEO_EXTS.join(", ")
         )));
     }
+    let settings = content_hash(&plan.resolved);
     let out_dir = plan.out_dir();
     std::fs::create_dir_all(&out_dir).map_err(|e| Error::Io { path: out_dir.clone(), cause: e })?;
     let probe = out_dir.join(format!(".write-test.{}", std::process::id()));
@@ -225,45 +216,23 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
     }
 
     let n_total = all.len();
-    let manifest_name = Manifest::file_name(opts.task_index, opts.task_count);
-    let manifest = match plan.sink() {
-        SinkConfig::Shards(_) => Manifest::load(&out_dir, &manifest_name)?,
-        _ => None,
-    };
-    // What the manifest lists counts as done only when its shards are whole and were made with
-    // these settings; anything else is redone (damaged shards of inputs this run does not read
-    // are reported).
-    let settings = content_hash(&plan.resolved);
-    let mut done = std::collections::BTreeSet::new();
-    let mut redo: Vec<(String, String)> = Vec::new();
-    if let Some(m) = &manifest {
-        let checks: Vec<_> = {
-            use rayon::prelude::*;
-            m.inputs.par_iter().map(|i| (i, i.verify(&out_dir))).collect()
-        };
-        for (i, check) in checks {
-            match check {
-                Ok(()) if i.settings == settings || i.settings.is_empty() => {
-                    done.insert(i.key.clone());
-                }
-                Ok(()) => redo.push((i.path.clone(), "made with other settings".into())),
-                Err(why) => redo.push((i.path.clone(), why)),
-            }
-        }
-    }
+    // What the sink already holds from earlier runs (whole, same settings) is skipped.
+    let task = (opts.task_index, opts.task_count);
+    let completed = plan.sink().completed(&out_dir, task, &settings)?;
     let mut skipped = Vec::new();
     let selected: Vec<(Arc<Input>, Option<PathBuf>)> = all
         .into_iter()
         .filter(|(i, _)| i.index % opts.task_count == opts.task_index)
         .filter(|(i, _)| {
-            let skip = done.contains(&i.key);
+            let skip = completed.keys.contains(&i.key);
             if skip {
                 skipped.push(i.path.clone());
             }
             !skip
         })
         .collect();
-    let redone: Vec<FailedInput> = redo
+    let redone: Vec<FailedInput> = completed
+        .redo
         .into_iter()
         .map(|(path, error)| {
             let ours = selected.iter().any(|(i, _)| i.path == path);
@@ -275,113 +244,28 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
 
     let counters = Arc::new(Counters::default());
     Counters::add(&counters.inputs_total, selected.len() as u64);
-    let needs = Needs {
-        frames: plan.blur().map_or(1, |b| b.window as u64),
-        width: plan.patches().map_or(0, |p| p.size),
-        height: plan.patches().map_or(0, |p| p.size),
-    };
-    let patches = plan.patches().cloned();
-    // Crop first when everything between the blur and the patches is per-pixel (noise).
-    let crop_first = patches.as_ref().filter(|p| p.crop_first).filter(|_| {
-        let kinds: Vec<&StagePlan> = plan.stages.iter().map(|(_, s)| s).collect();
-        let b = kinds.iter().position(|s| matches!(s, StagePlan::Transform(TransformConfig::CodedBlur(_))));
-        let p = kinds.iter().position(|s| matches!(s, StagePlan::Transform(TransformConfig::Patches(_))));
-        match (b, p) {
-            (Some(b), Some(p)) if b < p => kinds[b + 1..p].iter().all(|s| matches!(s, StagePlan::Transform(TransformConfig::Noise(_)))),
-            _ => false,
-        }
-    });
-    let curve = plan
-        .stages
-        .iter()
-        .find_map(|(_, s)| match s {
-            StagePlan::Transform(TransformConfig::Linearize(l)) => Some(l.curve),
-            _ => None,
-        })
-        .unwrap_or(crate::optics::transfer::Curve::Identity);
 
-    // Build every stage before any thread starts.
+    // Build every stage before any thread starts; each gets its own config and the context.
     let mut source: Option<Box<dyn Source>> = None;
     let mut transforms: Vec<(String, String, Box<dyn Transform>)> = Vec::new();
     let mut sink: Option<(String, Box<dyn Sink>)> = None;
-    for (name, st) in &plan.stages {
-        match st {
-            StagePlan::Source(SourceConfig::Decode(d)) => {
-                #[cfg(feature = "ffmpeg")]
-                {
-                    source = Some(Box::new(crate::stage::source::Decode {
-                        inputs: selected.iter().map(|(i, p)| (i.clone(), p.clone().expect("decode inputs are files"))).collect(),
-                        max_frames: d.max_frames,
-                        needs,
-                        counters: counters.clone(),
-                    }));
-                }
-                #[cfg(not(feature = "ffmpeg"))]
-                {
-                    let _ = d;
-                    return Err(Error::Invalid(format!("sources.{name}: built without the ffmpeg feature")));
-                }
-            }
-            StagePlan::Source(SourceConfig::Scene(s)) => {
-                source = Some(Box::new(crate::stage::source::Scene {
-                    cfg: s.clone(),
-                    inputs: selected.iter().map(|(i, _)| i.clone()).collect(),
-                    needs,
-                    counters: counters.clone(),
-                }));
-            }
-            StagePlan::Source(SourceConfig::Stills(s)) => {
-                source =
-                    Some(Box::new(Stills { cfg: s.clone(), seed: plan.seed, inputs: selected.clone(), needs, counters: counters.clone() }));
-            }
-            StagePlan::Transform(TransformConfig::Linearize(l)) => {
-                transforms.push((name.clone(), "linearize".into(), Box::new(Linearize::new(l.curve))))
-            }
-            StagePlan::Transform(TransformConfig::CodedBlur(b)) => {
-                let cam = Arc::new(Camera::new(&b.optics, &b.camera));
-                let blurrer = Blurrer::new(cam, b.window, b.threads, b.rank_tolerance)?;
-                let sel = crop_first.map(Selector::new);
-                transforms.push((
-                    name.clone(),
-                    "coded_blur".into(),
-                    Box::new(CodedBlur::new(blurrer, b.stride.unwrap_or(b.window), curve, plan.seed, sel, counters.clone())),
-                ));
-            }
-            StagePlan::Transform(TransformConfig::Noise(n)) => {
-                transforms.push((name.clone(), "noise".into(), Box::new(Noise::new(n.sigma, plan.seed))))
-            }
-            StagePlan::Transform(TransformConfig::Patches(p)) => {
-                transforms.push((name.clone(), "patches".into(), Box::new(Patches { selector: Selector::new(p), seed: plan.seed })))
-            }
-            StagePlan::Sink(SinkConfig::Shards(s)) => {
-                let m = manifest.clone().unwrap_or(Manifest {
-                    format: "webdataset".into(),
-                    prefix: s.prefix.clone(),
-                    task_index: opts.task_index,
-                    task_count: opts.task_count,
-                    ..Default::default()
-                });
-                sink = Some((
-                    name.clone(),
-                    Box::new(Shards::new(
-                        out_dir.clone(),
-                        s.prefix.clone(),
-                        s.max_samples_per_shard,
-                        m,
-                        manifest_name.clone(),
-                        settings.clone(),
-                        counters.clone(),
-                    )),
-                ));
-            }
-            StagePlan::Sink(SinkConfig::Frames(f)) => {
-                sink = Some((name.clone(), Box::new(Frames::new(out_dir.clone(), f.format, counters.clone()))))
-            }
-            #[cfg(feature = "train")]
-            StagePlan::Sink(SinkConfig::Trainer(t)) => sink = Some((name.clone(), Box::new(crate::train::TrainerSink::new(t, plan.seed)?))),
-            StagePlan::Sink(SinkConfig::Blackhole(_)) => {
-                sink = Some((name.clone(), Box::new(Blackhole { counters: counters.clone(), samples: 0, pending: 0, failed: Vec::new() })))
-            }
+    for (i, (name, st)) in plan.stages.iter().enumerate() {
+        let ctx = BuildContext {
+            name,
+            seed: plan.seed,
+            inputs: &selected,
+            needs: plan.needs_after(i),
+            crop: plan.crop_for(i),
+            counters: counters.clone(),
+            out_dir: &out_dir,
+            task,
+            settings: &settings,
+        };
+        let kind = serde_json::to_value(st).ok().and_then(|v| v["type"].as_str().map(str::to_string)).unwrap_or_default();
+        match st.config().build(&ctx).map_err(|e| Error::Invalid(format!("stage {name}: {e}")))? {
+            Built::Source(s) => source = Some(s),
+            Built::Transform(t) => transforms.push((name.clone(), kind, t)),
+            Built::Sink(s) => sink = Some((name.clone(), s)),
         }
     }
     let mut source = source.expect("a plan has a source");
@@ -498,7 +382,7 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
     let secs = t0.elapsed().as_secs_f64();
     let (frames, windows, samples) =
         (Counters::get(&counters.frames), Counters::get(&counters.windows), Counters::get(&counters.samples_kept));
-    let subframes = windows * plan.blur().map_or(0, |b| b.window as u64);
+    let subframes = windows * plan.subframes_per_window() as u64;
     let report = Report {
         provenance: provenance.clone(),
         out_dir: out_dir.display().to_string(),
@@ -527,10 +411,7 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
         config: serde_json::to_value(&plan.resolved).unwrap_or(serde_json::Value::Null),
     };
     // A trainer sink writes its own report.json; the generation report then goes beside it.
-    #[cfg(feature = "train")]
-    let stem = if matches!(plan.sink(), SinkConfig::Trainer(_)) { "generate-report" } else { "report" };
-    #[cfg(not(feature = "train"))]
-    let stem = "report";
+    let stem = plan.sink().report_stem();
     write_report(&out_dir, opts, stem, &report)?;
     Ok(Outcome { report, out_dir })
 }

@@ -22,6 +22,7 @@ pub mod eval;
 pub mod figure;
 pub mod frame;
 pub mod graph;
+pub mod imaging;
 pub mod io;
 pub mod metrics;
 #[cfg(feature = "train")]

@@ -137,13 +137,13 @@ pub struct TrainConfig {
     pub output: OutputConfig,
 }
 
-fn d_val_fraction() -> f64 {
+pub(crate) fn d_val_fraction() -> f64 {
     0.2
 }
-fn d_shuffle() -> usize {
+pub(crate) fn d_shuffle() -> usize {
     256
 }
-fn d_true() -> bool {
+pub(crate) fn d_true() -> bool {
     true
 }
 fn d_steps() -> usize {
@@ -173,7 +173,7 @@ fn d_every() -> usize {
 fn d_val_max() -> usize {
     64
 }
-fn d_ckpt() -> usize {
+pub(crate) fn d_ckpt() -> usize {
     100
 }
 
@@ -996,143 +996,6 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
         }
     }
     t.finish()
-}
-
-/// `[sinks.NAME] type = "trainer"`: trains on the generator's stream, no disk in between.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct TrainerSinkConfig {
-    pub inputs: Vec<String>,
-    /// Output folder: checkpoints, report.json, curves.png.
-    pub dir: String,
-    pub model: Arch,
-    #[serde(default)]
-    pub optim: OptimConfig,
-    #[serde(default)]
-    pub validate: ValidateConfig,
-    #[serde(default = "d_val_fraction")]
-    pub val_fraction: f64,
-    #[serde(default = "d_shuffle")]
-    pub shuffle_buffer: usize,
-    #[serde(default = "d_true")]
-    pub augment: bool,
-    #[serde(default = "d_ckpt")]
-    pub checkpoint_every: usize,
-}
-
-impl TrainerSinkConfig {
-    /// The equivalent training file (with no shards: the stream feeds it).
-    pub fn to_train_config(&self, seed: u64) -> TrainConfig {
-        TrainConfig {
-            seed,
-            model: self.model,
-            data: DataConfig {
-                shards: vec!["(stream)".into()],
-                val_fraction: self.val_fraction,
-                shuffle_buffer: self.shuffle_buffer,
-                augment: self.augment,
-            },
-            optim: self.optim.clone(),
-            validate: self.validate.clone(),
-            output: OutputConfig { dir: self.dir.clone(), checkpoint_every: self.checkpoint_every },
-        }
-    }
-}
-
-/// The `trainer` sink: samples go through a seeded shuffle buffer into training steps;
-/// samples of validation inputs are kept for validation.
-pub struct TrainerSink {
-    trainer: Option<Trainer>,
-    buffer: Vec<Pair>,
-    rng: Rng,
-    failed: Vec<(String, String)>,
-    summary: Option<TrainReport>,
-}
-
-impl TrainerSink {
-    /// # Errors
-    /// As [`Trainer::new`].
-    pub fn new(cfg: &TrainerSinkConfig, seed: u64) -> Result<TrainerSink> {
-        let t = Trainer::new(&cfg.to_train_config(seed), &TrainOptions { resume: false, progress: false, stop_after: None })?;
-        Ok(TrainerSink {
-            trainer: Some(t),
-            buffer: Vec::new(),
-            rng: Rng::new(hash(&[seed, hash_str("stream-shuffle")])),
-            failed: Vec::new(),
-            summary: None,
-        })
-    }
-
-    fn pump(&mut self, drain: bool) -> Result<()> {
-        let t = self.trainer.as_mut().expect("open");
-        let (cap, batch) = (t.cfg.data.shuffle_buffer.max(t.cfg.optim.batch), t.cfg.optim.batch);
-        while !t.done() && (self.buffer.len() >= cap || (drain && self.buffer.len() >= batch)) {
-            let b: Vec<Pair> = (0..batch).map(|_| self.buffer.swap_remove(self.rng.below(self.buffer.len()))).collect();
-            t.train_step(&b)?;
-        }
-        Ok(())
-    }
-}
-
-impl crate::stage::Sink for TrainerSink {
-    fn consume(&mut self, item: crate::frame::Item) -> Result<()> {
-        use crate::frame::{Img, Item};
-        match item {
-            Item::Sample(s) => {
-                let t = self.trainer.as_mut().expect("open");
-                for p in &s.pairs {
-                    let rgb = |img: &Img| match img {
-                        Img::Encoded8(v) => v.clone(),
-                        Img::Linear(l) => {
-                            crate::stage::noise::quantise(l, p.w, p.h, 0, 0, &crate::optics::transfer::Encoder::new(s.curve), 0.0, 0)
-                        }
-                    };
-                    let pair = Pair {
-                        key: format!("{}_{:06}", s.input.key, s.window),
-                        source: hash_str(&s.input.key),
-                        w: p.w,
-                        h: p.h,
-                        lq: rgb(&p.lq),
-                        gt: rgb(&p.gt),
-                    };
-                    if t.admit(&pair) {
-                        self.buffer.push(pair);
-                    } else if t.val.len() < t.cfg.validate.max_samples {
-                        t.val.push(pair);
-                    }
-                }
-                self.pump(false)?;
-            }
-            Item::End(input, Err(e)) => self.failed.push((input.path.clone(), e)),
-            _ => {}
-        }
-        Ok(())
-    }
-
-    fn wants_more(&self) -> bool {
-        self.trainer.as_ref().is_some_and(|t| !t.done())
-    }
-
-    fn finish(&mut self) -> Result<serde_json::Value> {
-        self.pump(true)?;
-        let t = self.trainer.take().expect("open");
-        if t.step == 0 {
-            return Err(Error::Invalid(format!("the stream ended before one batch of {} training samples", t.cfg.optim.batch)));
-        }
-        let r = t.finish()?;
-        let v = serde_json::json!({
-            "sink": "trainer", "arch": r.arch, "steps": r.steps, "patches_per_s": r.patches_per_s,
-            "validation": r.validation.last(), "dir": r.config.output.dir,
-        });
-        self.summary = Some(r);
-        Ok(v)
-    }
-
-    fn abort(&mut self) {}
-
-    fn failures(&self) -> Vec<(String, String)> {
-        self.failed.clone()
-    }
 }
 
 #[cfg(test)]

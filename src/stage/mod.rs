@@ -5,17 +5,205 @@
 //! stages downstream, and drops the rest of its items, so the sink discards its partial output
 //! while the other inputs go on. Any other error stops the whole run.
 
-pub mod blur;
+pub mod blackhole;
+pub mod coded_blur;
+#[cfg(feature = "ffmpeg")]
+pub mod decode;
+pub mod frames;
+pub mod input;
+pub mod linearize;
 pub mod noise;
 pub mod patches;
+pub mod scene;
 pub mod shards;
-pub mod source;
+pub mod stills;
+#[cfg(feature = "train")]
+pub mod trainer;
 
-use crate::frame::{Frame, Input, Item};
-use crate::optics::transfer::Curve;
+pub use input::{input_key, InputList, Needs};
+
+use crate::frame::{Input, Item};
+use crate::optics::ConfigError;
 use crossbeam_channel::Sender;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
+
+/// The stage kinds: `type = "..."` in a pipeline file, each a config in its own file of
+/// `src/stage/` that implements [`StageConfig`] beside its runtime. A new kind is one file and
+/// one line here.
+macro_rules! registry {
+    ($($(#[$m:meta])* $variant:ident($cfg:ty),)*) => {
+        /// A stage's config as written, by its `type`.
+        #[derive(Debug, Clone, Serialize, Deserialize)]
+        #[serde(tag = "type", rename_all = "snake_case")]
+        pub enum StageKind {
+            $($(#[$m])* $variant($cfg),)*
+        }
+
+        impl StageKind {
+            pub fn config(&self) -> &dyn StageConfig {
+                match self {
+                    $($(#[$m])* StageKind::$variant(c) => c,)*
+                }
+            }
+            pub fn config_mut(&mut self) -> &mut dyn StageConfig {
+                match self {
+                    $($(#[$m])* StageKind::$variant(c) => c,)*
+                }
+            }
+        }
+    };
+}
+
+registry! {
+    #[cfg(feature = "ffmpeg")]
+    Decode(decode::DecodeConfig),
+    Stills(stills::StillsConfig),
+    Scene(scene::SceneSourceConfig),
+    Linearize(linearize::LinearizeConfig),
+    CodedBlur(coded_blur::BlurConfig),
+    Noise(noise::NoiseConfig),
+    Patches(patches::PatchesConfig),
+    Shards(shards::ShardsConfig),
+    Frames(frames::FramesConfig),
+    Blackhole(blackhole::BlackholeConfig),
+    #[cfg(feature = "train")]
+    Trainer(trainer::TrainerSinkConfig),
+}
+
+/// Where a stage sits in a chain.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Role {
+    Source,
+    Transform,
+    Sink,
+}
+
+impl Role {
+    /// The table a stage of this role is written under.
+    pub fn table(self) -> &'static str {
+        match self {
+            Role::Source => "sources",
+            Role::Transform => "transforms",
+            Role::Sink => "sinks",
+        }
+    }
+}
+
+/// What flows on an edge; checked before any thread starts.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    EncodedFrames,
+    LinearFrames,
+    Samples,
+}
+
+impl Kind {
+    pub fn name(self) -> &'static str {
+        match self {
+            Kind::EncodedFrames => "encoded frames",
+            Kind::LinearFrames => "linear frames",
+            Kind::Samples => "samples",
+        }
+    }
+}
+
+/// What a stage gets when it is built, besides its own config: the run's settings and what the
+/// topology tells it (never another stage's config).
+pub struct BuildContext<'a> {
+    /// The stage's name (`blur` of `[transforms.blur]`).
+    pub name: &'a str,
+    pub seed: u64,
+    /// This task's inputs (sources), each with its file if it has one.
+    pub inputs: &'a [(Arc<Input>, Option<PathBuf>)],
+    /// What the stages downstream need of each input (sources check it before decoding).
+    pub needs: Needs,
+    /// Patches to cut before blurring, when a patch stage follows the blur across per-pixel
+    /// stages only ([`StageConfig::crop_selector`]).
+    pub crop: Option<patches::Selector>,
+    pub counters: Arc<Counters>,
+    /// The output folder (sinks).
+    pub out_dir: &'a Path,
+    /// This task's index and the task count (sinks name their files by them).
+    pub task: (usize, usize),
+    /// Hash of the settings that decide the samples' content (sinks record it).
+    pub settings: &'a str,
+}
+
+/// A built stage, ready to run on its thread.
+pub enum Built {
+    Source(Box<dyn Source>),
+    Transform(Box<dyn Transform>),
+    Sink(Box<dyn Sink>),
+}
+
+/// Inputs a sink already holds from earlier runs (skipped), and ones it holds damaged or made
+/// with other settings (redone), with the reason.
+#[derive(Debug, Default)]
+pub struct Completed {
+    pub keys: std::collections::BTreeSet<String>,
+    pub redo: Vec<(String, String)>,
+}
+
+/// A stage's config: what it reads and writes, its checks and how it builds its runtime.
+pub trait StageConfig: std::fmt::Debug {
+    fn role(&self) -> Role;
+    /// Names of the stages it reads from (empty for a source).
+    fn inputs(&self) -> &[String] {
+        &[]
+    }
+    /// The kind it accepts (ignored for a source) and the kind it produces.
+    fn kinds(&self) -> (Kind, Kind);
+    /// Every problem with its values, each named by its full key under `key`
+    /// (`transforms.blur`).
+    fn validate(&self, key: &str) -> Vec<ConfigError>;
+    /// What it needs of each input upstream (frames per window, frame size).
+    fn needs(&self) -> Needs {
+        Needs::default()
+    }
+    /// Works pixel by pixel, so patches may be cut before it.
+    fn per_pixel(&self) -> bool {
+        false
+    }
+    /// A stage that can work on patches cut first (the blur) when a patch stage follows.
+    fn takes_crop(&self) -> bool {
+        false
+    }
+    /// The patches it cuts, if they may be cut before the blur instead.
+    fn crop_selector(&self) -> Option<patches::Selector> {
+        None
+    }
+    /// Sub-frames each window images (the report's sub-frame count).
+    fn subframes_per_window(&self) -> usize {
+        0
+    }
+    /// A source's inputs.
+    ///
+    /// # Errors
+    /// A path that does not exist, a pattern that matches nothing.
+    fn list(&self) -> crate::Result<InputList> {
+        Ok(InputList::Procedural(0))
+    }
+    /// A sink's output folder.
+    fn out_dir(&self) -> Option<&str> {
+        None
+    }
+    fn set_out_dir(&mut self, _dir: String) {}
+    /// A sink's report name stem (`report`; a trainer writes its own report.json).
+    fn report_stem(&self) -> &'static str {
+        "report"
+    }
+    /// What a sink already holds in `dir` from earlier runs.
+    ///
+    /// # Errors
+    /// Its index of earlier work cannot be read.
+    fn completed(&self, _dir: &Path, _task: (usize, usize), _settings: &str) -> crate::Result<Completed> {
+        Ok(Completed::default())
+    }
+    fn build(&self, ctx: &BuildContext) -> crate::Result<Built>;
+}
 
 #[derive(Debug)]
 pub enum StageError {
@@ -124,33 +312,5 @@ pub trait Sink: Send {
     /// then stops its sources and finishes normally.
     fn wants_more(&self) -> bool {
         true
-    }
-}
-
-/// `linearize`: marks frames as linear light through `curve`. The pixels are converted lazily,
-/// by table, where they are read ([`Frame::linear_row`]): patch mode converts only its patches.
-pub struct Linearize {
-    curve: Curve,
-}
-
-impl Linearize {
-    pub fn new(curve: Curve) -> Linearize {
-        Linearize { curve }
-    }
-
-    /// The same pixels, tagged with the curve.
-    pub fn apply(&self, f: &Frame) -> Frame {
-        Frame { curve: Some(self.curve), ..f.clone() }
-    }
-}
-
-impl Transform for Linearize {
-    fn process(&mut self, item: Item, out: &mut Emit) -> StageResult {
-        let item = match item {
-            Item::Frame(input, i, f) => Item::Frame(input, i, Arc::new(self.apply(&f))),
-            other => other,
-        };
-        out.send(item);
-        Ok(())
     }
 }

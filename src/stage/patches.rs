@@ -2,10 +2,77 @@
 //! are a pure function of (seed, input, window, frame size), so cutting before the blur (crop
 //! first) and after it pick the same pixels.
 
-use super::{Emit, StageError, StageResult, Transform};
-use crate::config::{PatchesConfig, Placement};
+use super::{BuildContext, Built, Emit, Kind, Needs, Role, StageConfig, StageError, StageResult, Transform};
 use crate::frame::{Img, Item, Pair};
+use crate::optics::config::Checker;
+use crate::optics::ConfigError;
 use crate::rng::{hash, hash_str, Rng};
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Placement {
+    Random,
+    Grid,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PatchesConfig {
+    pub inputs: Vec<String>,
+    #[serde(default = "default_patch")]
+    pub size: usize,
+    /// Patches per window (grid: at most this many; 0 with grid: all).
+    #[serde(default = "default_per_window")]
+    pub per_window: usize,
+    #[serde(default = "default_placement")]
+    pub placement: Placement,
+    /// Cut patches (plus the kernel margin) before blurring: the same pixels for less work.
+    #[serde(default = "default_true")]
+    pub crop_first: bool,
+}
+
+fn default_patch() -> usize {
+    128
+}
+fn default_per_window() -> usize {
+    8
+}
+fn default_placement() -> Placement {
+    Placement::Random
+}
+fn default_true() -> bool {
+    true
+}
+
+impl StageConfig for PatchesConfig {
+    fn role(&self) -> Role {
+        Role::Transform
+    }
+    fn inputs(&self) -> &[String] {
+        &self.inputs
+    }
+    fn kinds(&self) -> (Kind, Kind) {
+        (Kind::Samples, Kind::Samples)
+    }
+    fn validate(&self, key: &str) -> Vec<ConfigError> {
+        let mut c = Checker::new(key);
+        c.range_usize("size", self.size, 8, 4096);
+        if self.placement == Placement::Random {
+            c.range_usize("per_window", self.per_window, 1, 4096);
+        }
+        c.errors
+    }
+    fn needs(&self) -> Needs {
+        Needs { frames: 0, width: self.size, height: self.size }
+    }
+    fn crop_selector(&self) -> Option<Selector> {
+        self.crop_first.then(|| Selector::new(self))
+    }
+    fn build(&self, ctx: &BuildContext) -> crate::Result<Built> {
+        Ok(Built::Transform(Box::new(Patches { selector: Selector::new(self), seed: ctx.seed })))
+    }
+}
 
 #[derive(Debug, Clone)]
 pub struct Selector {
@@ -49,7 +116,7 @@ impl Selector {
 
 fn crop_img(img: &Img, fw: usize, x: usize, y: usize, s: usize) -> Img {
     match img {
-        Img::Linear(p) => Img::Linear(super::blur::crop(p, fw, x, y, s, s)),
+        Img::Linear(p) => Img::Linear(crate::imaging::blur::crop(p, fw, x, y, s, s)),
         Img::Encoded8(v) => {
             Img::Encoded8((0..s).flat_map(|yy| v[((y + yy) * fw + x) * 3..((y + yy) * fw + x + s) * 3].iter().copied()).collect())
         }

@@ -1,4 +1,4 @@
-//! Sinks: `shards` (WebDataset tar) and `frames` (GoPro folder layout).
+//! `shards`: WebDataset tar shards and their manifest.
 //!
 //! Shards: each sample is `key.lq.png`, `key.gt.png`, `key.json`, one after another; key
 //! `{stem}_{id}_{window:06}[_{patch:03}]` (no dots), where `{stem}_{id}` is the input's key (its
@@ -9,28 +9,104 @@
 //! share a folder, one after another or at once, all keep their entries. Each shard's size and
 //! CRC-32 are recorded, and a rerun redoes an input whose shards are missing or damaged.
 
-use super::{Counters, Sink};
-use crate::config::ImageFormat;
+use super::{BuildContext, Built, Completed, Counters, Kind, Role, Sink, StageConfig};
 use crate::frame::{Img, Input, InputInfo, Item, Pair, Sample};
-use crate::io::{exr, png as png_io, tar, write_atomic};
-use crate::optics::transfer::{Curve, Encoder};
+use crate::io::{png as png_io, tar, write_atomic};
+use crate::optics::config::Checker;
+use crate::optics::transfer::Curve;
+use crate::optics::ConfigError;
 use serde::{Deserialize, Serialize};
 use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-/// 8-bit interleaved RGB of an image (quantising linear light without noise).
-fn rgb8(img: &Img, w: usize, h: usize, curve: Curve) -> Vec<u8> {
-    match img {
-        Img::Encoded8(v) => v.clone(),
-        Img::Linear(p) => super::noise::quantise(p, w, h, 0, 0, &Encoder::new(curve), 0.0, 0),
+/// `type = "shards"`: WebDataset tar shards plus `manifest.json`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ShardsConfig {
+    pub inputs: Vec<String>,
+    #[serde(default = "default_dir")]
+    pub dir: String,
+    #[serde(default = "default_prefix")]
+    pub prefix: String,
+    #[serde(default = "default_max_samples")]
+    pub max_samples_per_shard: usize,
+}
+
+pub(crate) fn default_dir() -> String {
+    "out".into()
+}
+fn default_prefix() -> String {
+    "train".into()
+}
+fn default_max_samples() -> usize {
+    1000
+}
+
+impl StageConfig for ShardsConfig {
+    fn role(&self) -> Role {
+        Role::Sink
+    }
+    fn inputs(&self) -> &[String] {
+        &self.inputs
+    }
+    fn kinds(&self) -> (Kind, Kind) {
+        (Kind::Samples, Kind::Samples)
+    }
+    fn validate(&self, key: &str) -> Vec<ConfigError> {
+        let mut c = Checker::new(key);
+        c.range_usize("max_samples_per_shard", self.max_samples_per_shard, 1, 10_000_000);
+        if self.prefix.is_empty() || self.prefix.contains(['/', '.']) {
+            c.fail("prefix", format!("{:?} must be non-empty, without '/' or '.'", self.prefix));
+        }
+        c.errors
+    }
+    fn out_dir(&self) -> Option<&str> {
+        Some(&self.dir)
+    }
+    fn set_out_dir(&mut self, dir: String) {
+        self.dir = dir;
+    }
+    /// What the manifest lists counts as done only when its shards are whole and were made with
+    /// these settings; anything else is redone.
+    fn completed(&self, dir: &Path, task: (usize, usize), settings: &str) -> crate::Result<Completed> {
+        let mut c = Completed::default();
+        let Some(m) = Manifest::load(dir, &Manifest::file_name(task.0, task.1))? else { return Ok(c) };
+        let checks: Vec<_> = {
+            use rayon::prelude::*;
+            m.inputs.par_iter().map(|i| (i, i.verify(dir))).collect()
+        };
+        for (i, check) in checks {
+            match check {
+                Ok(()) if i.settings == settings || i.settings.is_empty() => {
+                    c.keys.insert(i.key.clone());
+                }
+                Ok(()) => c.redo.push((i.path.clone(), "made with other settings".into())),
+                Err(why) => c.redo.push((i.path.clone(), why)),
+            }
+        }
+        Ok(c)
+    }
+    fn build(&self, ctx: &BuildContext) -> crate::Result<Built> {
+        let (task_index, task_count) = ctx.task;
+        let template = Manifest { format: "webdataset".into(), prefix: self.prefix.clone(), task_index, task_count, ..Default::default() };
+        Ok(Built::Sink(Box::new(Shards::new(
+            ctx.out_dir.to_path_buf(),
+            self.prefix.clone(),
+            self.max_samples_per_shard,
+            template,
+            Manifest::file_name(task_index, task_count),
+            ctx.settings.to_string(),
+            ctx.counters.clone(),
+        ))))
     }
 }
 
-fn png_bytes(img: &Img, w: usize, h: usize, curve: Curve) -> Vec<u8> {
+/// A PNG of an image (quantising linear light without noise).
+pub(crate) fn png_bytes(img: &Img, w: usize, h: usize, curve: Curve) -> Vec<u8> {
     let mut buf = Vec::new();
-    png_io::write_rgb8(&mut buf, w, h, &rgb8(img, w, h, curve)).expect("png into memory");
+    png_io::write_rgb8(&mut buf, w, h, &img.rgb8(w, h, curve)).expect("png into memory");
     buf
 }
 
@@ -466,142 +542,6 @@ impl Sink for Shards {
         self.discard();
     }
 
-    fn failures(&self) -> Vec<(String, String)> {
-        self.failed.clone()
-    }
-}
-
-/// `frames`: `{dir}/{key}/blur_gamma/{window:06}.png` and `sharp/` (8-bit, encoded), or with
-/// `format = "exr"` `blur_linear/` and `sharp_linear/` in linear light.
-pub struct Frames {
-    pub dir: PathBuf,
-    pub format: ImageFormat,
-    pub counters: Arc<Counters>,
-    pub failed: Vec<(String, String)>,
-    written: Vec<PathBuf>,
-    samples: usize,
-    /// Samples of the input being written.
-    pending: usize,
-}
-
-impl Frames {
-    pub fn new(dir: PathBuf, format: ImageFormat, counters: Arc<Counters>) -> Frames {
-        Frames { dir, format, counters, failed: Vec::new(), written: Vec::new(), samples: 0, pending: 0 }
-    }
-
-    fn write(&mut self, s: &Sample, p: &Pair) -> crate::Result<()> {
-        let name = match p.patch {
-            Some(i) => format!("{:06}_{:03}", s.window, i),
-            None => format!("{:06}", s.window),
-        };
-        let base = self.dir.join(&s.input.key);
-        let (lq_dir, gt_dir, ext) = match self.format {
-            ImageFormat::Png => ("blur_gamma", "sharp", "png"),
-            ImageFormat::Exr => ("blur_linear", "sharp_linear", "exr"),
-        };
-        for (sub, img) in [(lq_dir, &p.lq), (gt_dir, &p.gt)] {
-            let d = base.join(sub);
-            std::fs::create_dir_all(&d).map_err(|e| crate::Error::Io { path: d.clone(), cause: e })?;
-            let path = d.join(format!("{name}.{ext}"));
-            match self.format {
-                ImageFormat::Png => {
-                    let bytes = png_bytes(img, p.w, p.h, s.curve);
-                    write_atomic(&path, |w| w.write_all(&bytes))?;
-                }
-                ImageFormat::Exr => {
-                    let lin: [Vec<f32>; 3] = match img {
-                        Img::Linear(l) => l.clone(),
-                        Img::Encoded8(v) => {
-                            std::array::from_fn(|c| (0..p.w * p.h).map(|i| s.curve.to_linear(v[i * 3 + c] as f64 / 255.0) as f32).collect())
-                        }
-                    };
-                    write_atomic(&path, |w| exr::write_rgb_f32(w, p.w, p.h, [&lin[0], &lin[1], &lin[2]]))?;
-                }
-            }
-            self.written.push(path);
-        }
-        Ok(())
-    }
-}
-
-impl Sink for Frames {
-    fn consume(&mut self, item: Item) -> crate::Result<()> {
-        match item {
-            Item::Begin(..) => {
-                self.written.clear();
-                self.pending = 0;
-            }
-            Item::Sample(s) => {
-                for p in &s.pairs {
-                    self.write(&s, p)?;
-                }
-                self.pending += s.pairs.len();
-                Counters::add(&self.counters.samples, s.pairs.len() as u64);
-            }
-            Item::End(_, Ok(())) => {
-                self.written.clear();
-                self.samples += self.pending;
-                Counters::add(&self.counters.samples_kept, self.pending as u64);
-                Counters::add(&self.counters.inputs_done, 1);
-            }
-            Item::End(input, Err(e)) => {
-                self.abort();
-                self.failed.push((input.path.clone(), e));
-                Counters::add(&self.counters.inputs_failed, 1);
-            }
-            Item::Frame(..) => {}
-        }
-        Ok(())
-    }
-
-    fn finish(&mut self) -> crate::Result<serde_json::Value> {
-        Ok(serde_json::json!({ "sink": "frames", "dir": self.dir, "samples": self.samples }))
-    }
-
-    fn abort(&mut self) {
-        for p in self.written.drain(..) {
-            let _ = std::fs::remove_file(p);
-        }
-    }
-
-    fn failures(&self) -> Vec<(String, String)> {
-        self.failed.clone()
-    }
-}
-
-/// `blackhole`: counts what arrives and keeps nothing.
-pub struct Blackhole {
-    pub counters: Arc<Counters>,
-    pub samples: usize,
-    pub pending: usize,
-    pub failed: Vec<(String, String)>,
-}
-
-impl Sink for Blackhole {
-    fn consume(&mut self, item: Item) -> crate::Result<()> {
-        match item {
-            Item::Begin(..) => self.pending = 0,
-            Item::Sample(s) => {
-                self.pending += s.pairs.len();
-                Counters::add(&self.counters.samples, s.pairs.len() as u64);
-            }
-            Item::End(_, Ok(())) => {
-                self.samples += self.pending;
-                Counters::add(&self.counters.samples_kept, self.pending as u64);
-                Counters::add(&self.counters.inputs_done, 1);
-            }
-            Item::End(input, Err(e)) => {
-                self.failed.push((input.path.clone(), e));
-                Counters::add(&self.counters.inputs_failed, 1);
-            }
-            _ => {}
-        }
-        Ok(())
-    }
-    fn finish(&mut self) -> crate::Result<serde_json::Value> {
-        Ok(serde_json::json!({ "sink": "blackhole", "samples": self.samples }))
-    }
-    fn abort(&mut self) {}
     fn failures(&self) -> Vec<(String, String)> {
         self.failed.clone()
     }

@@ -1,24 +1,17 @@
-//! `coded_blur`: groups linear frames into windows of N (with a stride) and images each window
-//! through a camera: `B = sum_k w_k (PSF_k * S_k)` (weights inside the rendered kernels), by real
-//! FFTs with the products summed in the frequency domain and one inverse per channel. Borders
-//! are mirrored. The sharp target is the middle frame (frame N / 2).
-//!
-//! In patch mode (a `patches` stage downstream with `crop_first`), only each patch plus the
-//! kernel margin is cut and blurred: the same pixels as blurring the whole frame.
-
-use super::patches::Selector;
-use super::{Counters, Emit, StageError, StageResult, Transform};
-use crate::frame::{Cols, Frame, Img, Input, Item, Pair, Sample};
+//! Imaging a window of N linear frames through a camera: `B = sum_k w_k (PSF_k * S_k)` (weights
+//! inside the rendered kernels), by real FFTs with the products summed in the frequency domain
+//! and one inverse per channel. Borders are mirrored. Whole frames, regions, or patches plus the
+//! kernel margin (the same pixels as blurring the whole frame and cropping).
+use crate::frame::{Cols, Frame};
 use crate::optics::fft::{fast_size, reflect, FftConv};
 use crate::optics::lowrank::{factorise, LowRank};
-use crate::optics::transfer::Curve;
 use crate::optics::{Camera, SubframeKernel};
 use num_complex::Complex32;
-use std::collections::{HashMap, VecDeque};
+use std::collections::HashMap;
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
-/// The numerical part of the stage: kernels, their low-rank factorisation per channel,
+/// The numerical part of imaging a window: kernels, their low-rank factorisation per channel,
 /// spectra caches and worker FFT plans.
 ///
 /// Per channel the N kernels are factorised as `K_k = sum_r a_kr B_r` (see
@@ -305,120 +298,6 @@ fn mul_acc_add(acc: &mut [Complex32], other: &[Complex32]) {
 /// Crops `rw x rh` at (x, y) out of planar planes of width `w`.
 pub fn crop(p: &[Vec<f32>; 3], w: usize, x: usize, y: usize, rw: usize, rh: usize) -> [Vec<f32>; 3] {
     std::array::from_fn(|c| (0..rh).flat_map(|yy| p[c][(y + yy) * w + x..(y + yy) * w + x + rw].iter().copied()).collect())
-}
-
-/// The `coded_blur` stage.
-pub struct CodedBlur {
-    pub blurrer: Blurrer,
-    pub stride: usize,
-    pub curve: Curve,
-    pub seed: u64,
-    /// Patch selector when patches are cut before blurring.
-    pub crop_first: Option<Selector>,
-    pub counters: Arc<Counters>,
-    buf: VecDeque<(u64, Arc<Frame>)>,
-    next_start: u64,
-    window: u64,
-    input: Option<Arc<Input>>,
-}
-
-impl CodedBlur {
-    pub fn new(
-        blurrer: Blurrer,
-        stride: usize,
-        curve: Curve,
-        seed: u64,
-        crop_first: Option<Selector>,
-        counters: Arc<Counters>,
-    ) -> CodedBlur {
-        CodedBlur { blurrer, stride, curve, seed, crop_first, counters, buf: VecDeque::new(), next_start: 0, window: 0, input: None }
-    }
-
-    fn emit_window(&mut self, input: &Arc<Input>, out: &mut Emit) -> StageResult {
-        let n = self.blurrer.n;
-        let frames: Vec<Arc<Frame>> = self.buf.iter().take(n).map(|(_, f)| f.clone()).collect();
-        let first = self.buf[0].0;
-        let (w, h) = (frames[0].width, frames[0].height);
-        let mid = &frames[n / 2];
-        let pairs = match &self.crop_first {
-            Some(sel) => {
-                let pos = sel
-                    .positions(self.seed, input.id, self.window, w, h)
-                    .map_err(|e| StageError::Input(input.clone(), format!("{}: {e}", input.path)))?;
-                let lqs = self.blurrer.blur_patches(&frames, &pos, sel.size);
-                pos.into_iter()
-                    .zip(lqs)
-                    .enumerate()
-                    .map(|(i, ((x, y), lq))| {
-                        let gt = mid.linear_crop(x, y, sel.size, sel.size);
-                        Pair { patch: Some(i as u32), x, y, w: sel.size, h: sel.size, lq: Img::Linear(lq), gt: Img::Linear(gt) }
-                    })
-                    .collect()
-            }
-            None => {
-                let lq = self.blurrer.blur_region(&frames, 0, 0, w, h);
-                vec![Pair { patch: None, x: 0, y: 0, w, h, lq: Img::Linear(lq), gt: Img::Linear(mid.linear_crop(0, 0, w, h)) }]
-            }
-        };
-        let kernels = self.blurrer.kernels();
-        let sample = Sample {
-            input: input.clone(),
-            window: self.window,
-            first_frame: first,
-            frames: n,
-            camera: self.blurrer.camera.kind(),
-            psi: kernels.iter().map(|k| k.psi).collect(),
-            curve: self.curve,
-            sigma: None,
-            light_throughput: self.blurrer.camera.light_throughput(),
-            frame_width: w,
-            frame_height: h,
-            cropped: self.crop_first.is_some(),
-            pairs,
-        };
-        Counters::add(&self.counters.windows, 1);
-        self.window += 1;
-        out.send(Item::Sample(Box::new(sample)));
-        Ok(())
-    }
-}
-
-impl Transform for CodedBlur {
-    fn process(&mut self, item: Item, out: &mut Emit) -> StageResult {
-        match item {
-            Item::Begin(input, info) => {
-                self.buf.clear();
-                self.next_start = 0;
-                self.window = 0;
-                self.input = Some(input.clone());
-                out.send(Item::Begin(input, info));
-            }
-            Item::Frame(input, idx, f) => {
-                if idx >= self.next_start {
-                    self.buf.push_back((idx, f));
-                }
-                while self.buf.len() >= self.blurrer.n {
-                    self.emit_window(&input, out)?;
-                    self.next_start += self.stride as u64;
-                    while self.buf.front().is_some_and(|(i, _)| *i < self.next_start) {
-                        self.buf.pop_front();
-                    }
-                }
-            }
-            Item::End(input, res) => {
-                self.buf.clear();
-                let res = match res {
-                    Ok(()) if self.window == 0 => Err(format!("{}: shorter than one window of {} frames", input.path, self.blurrer.n)),
-                    other => other,
-                };
-                out.send(Item::End(input, res));
-            }
-            other => {
-                out.send(other);
-            }
-        }
-        Ok(())
-    }
 }
 
 #[cfg(test)]

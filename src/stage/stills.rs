@@ -1,107 +1,95 @@
-//! Sources: `decode` (FFmpeg) and `stills` (clips rendered from photographs or procedural
-//! textures with seeded motion).
+//! `stills`: high-frame-rate clips rendered from still photographs (or procedural textures) with
+//! seeded camera shake, a steady pan and independently moving layers.
 
-use super::{Counters, Emit, Source};
-use crate::config::StillsConfig;
-use crate::frame::{Frame, FrameData, Input, InputInfo, Item};
+use super::input::emit_clip;
+use super::{BuildContext, Built, Counters, Emit, InputList, Kind, Needs, Role, Source, StageConfig};
+use crate::frame::{Frame, FrameData, Input, Item};
+use crate::optics::config::Checker;
+use crate::optics::ConfigError;
 use crate::rng::{hash, hash_str, Rng};
+use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
-use std::sync::atomic::Ordering;
 use std::sync::Arc;
 
-/// A WebDataset-safe key for an input: its file stem with anything but letters, digits, '-'
-/// and '_' replaced, plus 12 hex digits of `id`, the hash of its identity (the canonical path's
-/// bytes, or a procedural clip's number and seed). Shard names and sample keys derive from it, so runs
-/// with other inputs, tasks of an array job and equal stems in other folders never collide,
-/// while a rerun of the same input finds its own shards.
-pub fn input_key(stem_of: &str, id: u64) -> String {
-    let stem = std::path::Path::new(stem_of).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    let clean: String = stem.chars().take(40).map(|c| if c.is_ascii_alphanumeric() || c == '-' { c } else { '_' }).collect();
-    format!("{clean}_{:012x}", id >> 16)
-}
-
-/// Minimum frames and frame size the stages downstream need, checked by the source.
-#[derive(Debug, Clone, Copy, Default)]
-pub struct Needs {
+/// `type = "stills"`: renders high-frame-rate clips from still photographs (or a procedural
+/// texture when `paths` is empty) with seeded camera shake and independently moving layers.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct StillsConfig {
+    /// PNG files or folders of them; empty: procedural textures (`clips` of them).
+    pub paths: Vec<String>,
+    /// Procedural clips when `paths` is empty.
+    pub clips: usize,
+    /// Frames rendered per clip.
     pub frames: u64,
-    pub width: usize,
-    pub height: usize,
+    /// Nominal frame rate written to the report.
+    pub fps: f64,
+    /// Output frame size [width, height]; for photos, the centre crop (0: the photo's size).
+    pub size: [usize; 2],
+    /// Standard deviation of the camera's velocity change per frame, pixels.
+    pub shake_px: f64,
+    /// Moving layers pasted over the background.
+    pub layers: usize,
+    /// Largest layer speed, pixels per frame.
+    pub layer_speed_px: f64,
+    /// Largest steady camera (pan) speed, pixels per frame: each clip draws a speed uniformly
+    /// from [0, this] in a random direction, on top of the shake (0: shake only).
+    pub pan_px: f64,
 }
 
-fn check_size(info: &InputInfo, needs: &Needs) -> Result<(), String> {
-    if info.width < needs.width || info.height < needs.height {
-        return Err(format!("frames are {}x{}, smaller than a {}x{} patch", info.width, info.height, needs.width, needs.height));
-    }
-    if let Some(n) = info.frames_announced {
-        if n < needs.frames {
-            return Err(format!("{n} frames, shorter than one window of {}", needs.frames));
+impl Default for StillsConfig {
+    fn default() -> Self {
+        StillsConfig {
+            paths: Vec::new(),
+            clips: 2,
+            frames: 36,
+            fps: 240.0,
+            size: [256, 192],
+            shake_px: 0.15,
+            layers: 3,
+            layer_speed_px: 2.0,
+            pan_px: 0.0,
         }
     }
-    Ok(())
 }
 
-#[cfg(feature = "ffmpeg")]
-pub struct Decode {
-    pub inputs: Vec<(Arc<Input>, PathBuf)>,
-    pub max_frames: u64,
-    pub needs: Needs,
-    pub counters: Arc<Counters>,
-}
-
-#[cfg(feature = "ffmpeg")]
-impl Source for Decode {
-    fn run(&mut self, out: &mut Emit) -> crate::Result<()> {
-        use crate::io::video::VideoReader;
-        for (input, path) in &self.inputs {
-            let fail = |msg: String| Item::End(input.clone(), Err(format!("{}: {msg}", path.display())));
-            let mut reader = match VideoReader::open(path) {
-                Ok(r) => r,
-                Err(e) => {
-                    if !out.send(fail(e)) {
-                        return Ok(());
-                    }
-                    continue;
-                }
-            };
-            if let Err(e) = check_size(&reader.info, &self.needs) {
-                if !out.send(fail(e)) {
-                    return Ok(());
-                }
-                continue;
-            }
-            if !out.send(Item::Begin(input.clone(), reader.info.clone())) {
-                return Ok(());
-            }
-            let mut n = 0u64;
-            let end = loop {
-                if out.stop.load(Ordering::Relaxed) {
-                    return Ok(());
-                }
-                if self.max_frames > 0 && n >= self.max_frames {
-                    break Ok(());
-                }
-                match reader.next_frame() {
-                    Ok(Some(f)) => {
-                        Counters::add(&self.counters.frames, 1);
-                        if !out.send(Item::Frame(input.clone(), n, Arc::new(f))) {
-                            return Ok(());
-                        }
-                        n += 1;
-                    }
-                    Ok(None) => match reader.info.frames_announced {
-                        Some(a) if n < a => break Err(format!("truncated: decoded {n} of the {a} frames the container announces")),
-                        _ => break Ok(()),
-                    },
-                    Err(e) => break Err(e),
-                }
-            };
-            self.counters.input(&input.path, &reader.info, n);
-            let end = end.map_err(|e| format!("{}: {e}", path.display()));
-            if !out.send(Item::End(input.clone(), end)) {
-                return Ok(());
+impl StageConfig for StillsConfig {
+    fn role(&self) -> Role {
+        Role::Source
+    }
+    fn kinds(&self) -> (Kind, Kind) {
+        (Kind::EncodedFrames, Kind::EncodedFrames)
+    }
+    fn validate(&self, key: &str) -> Vec<ConfigError> {
+        let mut c = Checker::new(key);
+        c.range_usize("frames", self.frames as usize, 1, 1_000_000);
+        c.range("fps", self.fps, 1.0, 100_000.0);
+        c.range("shake_px", self.shake_px, 0.0, 50.0);
+        c.range_usize("layers", self.layers, 0, 64);
+        c.range("layer_speed_px", self.layer_speed_px, 0.0, 100.0);
+        c.range("pan_px", self.pan_px, 0.0, 100.0);
+        if self.paths.is_empty() {
+            c.range_usize("clips", self.clips, 1, 100_000);
+            for (i, v) in self.size.iter().enumerate() {
+                c.range_usize(&format!("size[{i}]"), *v, 16, 8192);
             }
         }
-        Ok(())
+        c.errors
+    }
+    fn list(&self) -> crate::Result<InputList> {
+        if self.paths.is_empty() {
+            return Ok(InputList::Procedural(self.clips));
+        }
+        crate::config::expand_paths(&self.paths, &["png"]).map(InputList::Files)
+    }
+    fn build(&self, ctx: &BuildContext) -> crate::Result<Built> {
+        Ok(Built::Source(Box::new(Stills {
+            cfg: self.clone(),
+            seed: ctx.seed,
+            inputs: ctx.inputs.to_vec(),
+            needs: ctx.needs,
+            counters: ctx.counters.clone(),
+        })))
     }
 }
 
@@ -285,79 +273,6 @@ impl Source for Stills {
     }
 }
 
-/// Sends one rendered clip downstream (Begin, its frames, End); false when the graph stops.
-fn emit_clip(out: &mut Emit, input: &Arc<Input>, frames: Vec<Frame>, fps: f64, codec: &str, needs: &Needs, counters: &Counters) -> bool {
-    let info = InputInfo {
-        width: frames.first().map_or(0, |f| f.width),
-        height: frames.first().map_or(0, |f| f.height),
-        fps,
-        frames_announced: Some(frames.len() as u64),
-        codec: codec.into(),
-        pixel_format: "rgbf32".into(),
-    };
-    if let Err(e) = check_size(&info, needs) {
-        return out.send(Item::End(input.clone(), Err(format!("{}: {e}", input.path))));
-    }
-    counters.input(&input.path, &info, frames.len() as u64);
-    if !out.send(Item::Begin(input.clone(), info)) {
-        return false;
-    }
-    for (i, f) in frames.into_iter().enumerate() {
-        if out.stop.load(Ordering::Relaxed) {
-            return false;
-        }
-        Counters::add(&counters.frames, 1);
-        if !out.send(Item::Frame(input.clone(), i as u64, Arc::new(f))) {
-            return false;
-        }
-    }
-    out.send(Item::End(input.clone(), Ok(())))
-}
-
-/// `type = "scene"`: synthetic moving scenes ([`crate::scene`]), one exposure of `frames`
-/// sub-frames per clip, as encoded sRGB frames (a `linearize` with curve srgb gives back the
-/// rendered linear light).
-pub struct Scene {
-    pub cfg: crate::config::SceneSourceConfig,
-    pub inputs: Vec<Arc<Input>>,
-    pub needs: Needs,
-    pub counters: Arc<Counters>,
-}
-
-impl Source for Scene {
-    fn run(&mut self, out: &mut Emit) -> crate::Result<()> {
-        let c = &self.cfg;
-        let params = crate::scene::SceneParams {
-            kind: c.scene,
-            width: c.size[0],
-            height: c.size[1],
-            frames: c.frames,
-            travel_px: c.travel_px,
-            dots_per_arm: c.dots_per_arm,
-            spokes: c.spokes,
-        };
-        let enc = crate::optics::transfer::Encoder::new(crate::optics::transfer::Curve::Srgb);
-        // Every clip is the same exposure: render it once (frames share their pixels).
-        let frames: Vec<Frame> = params
-            .render()
-            .into_iter()
-            .map(|p| {
-                Frame::new(
-                    params.width,
-                    params.height,
-                    FrameData::Planar(p.map(|v| v.into_iter().map(|x| enc.encode(x.min(1.0))).collect())),
-                )
-            })
-            .collect();
-        for input in &self.inputs {
-            if !emit_clip(out, input, frames.clone(), c.fps, "scene", &self.needs, &self.counters) {
-                return Ok(());
-            }
-        }
-        Ok(())
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -389,14 +304,5 @@ mod tests {
         let img = vec![0.0, 1.0, 2.0, 3.0];
         assert_eq!(sample(&img, 2, 2, 1.0, 0.0), 1.0);
         assert!((sample(&img, 2, 2, 0.5, 0.5) - 1.5).abs() < 1e-6);
-    }
-
-    #[test]
-    fn keys_have_no_dots() {
-        let id = |p: &str| crate::rng::hash_bytes(p.as_bytes());
-        let k = input_key("/a/b/my.clip.v2.mp4", id("/a/b/my.clip.v2.mp4"));
-        assert!(k.starts_with("my_clip_v2_") && k.len() == "my_clip_v2_".len() + 12 && !k.contains('.'), "{k}");
-        assert_ne!(k, input_key("/a/c/my.clip.v2.mp4", id("/a/c/my.clip.v2.mp4")), "equal stems in other folders");
-        assert_eq!(k, input_key("my.clip.v2.mp4", id("/a/b/my.clip.v2.mp4")), "the identity decides, not the spelling");
     }
 }

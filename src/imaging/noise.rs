@@ -1,0 +1,109 @@
+//! Noise and quantisation as a camera applies them: re-encode linear light with the camera curve,
+//! add AWGN (sigma on the 0-255 scale), clip and quantise to 8 bits. The noise of a pixel is a
+//! function of (key, absolute x, y, channel), so it does not depend on whether patches were cut
+//! before or after.
+
+use crate::optics::transfer::Encoder;
+use crate::rng::mix;
+
+/// Standard normal quantiles at (i + 0.5) / 65536: a pixel's three noise values are three
+/// 16-bit slices of one hash, looked up here (tails reach 4.3 sigma).
+fn normal_table() -> &'static [f32] {
+    static T: std::sync::OnceLock<Vec<f32>> = std::sync::OnceLock::new();
+    T.get_or_init(|| (0..65536).map(|i| inverse_normal_cdf((i as f64 + 0.5) / 65536.0) as f32).collect())
+}
+
+/// Acklam's rational approximation of the inverse normal CDF (relative error < 1.2e-9).
+pub fn inverse_normal_cdf(p: f64) -> f64 {
+    const A: [f64; 6] =
+        [-3.969683028665376e1, 2.209460984245205e2, -2.759285104469687e2, 1.383577518672690e2, -3.066479806614716e1, 2.506628277459239];
+    const B: [f64; 5] = [-5.447609879822406e1, 1.615858368580409e2, -1.556989798598866e2, 6.680131188771972e1, -1.328068155288572e1];
+    const C: [f64; 6] =
+        [-7.784894002430293e-3, -3.223964580411365e-1, -2.400758277161838, -2.549732539343734, 4.374664141464968, 2.938163982698783];
+    const D: [f64; 4] = [7.784695709041462e-3, 3.224671290700398e-1, 2.445134137142996, 3.754408661907416];
+    let tail = |q: f64| {
+        (((((C[0] * q + C[1]) * q + C[2]) * q + C[3]) * q + C[4]) * q + C[5]) / ((((D[0] * q + D[1]) * q + D[2]) * q + D[3]) * q + 1.0)
+    };
+    if p < 0.02425 {
+        tail((-2.0 * p.ln()).sqrt())
+    } else if p > 1.0 - 0.02425 {
+        -tail((-2.0 * (1.0 - p).ln()).sqrt())
+    } else {
+        let q = p - 0.5;
+        let r = q * q;
+        (((((A[0] * r + A[1]) * r + A[2]) * r + A[3]) * r + A[4]) * r + A[5]) * q
+            / (((((B[0] * r + B[1]) * r + B[2]) * r + B[3]) * r + B[4]) * r + 1.0)
+    }
+}
+
+/// Encodes and quantises planar linear RGB to interleaved 8-bit, adding `sigma` (0-255 scale)
+/// of noise keyed on absolute pixel positions (`x0`, `y0` is the image's top-left in the frame).
+#[allow(clippy::too_many_arguments)]
+pub fn quantise(p: &[Vec<f32>; 3], w: usize, h: usize, x0: usize, y0: usize, enc: &Encoder, sigma: f64, key: u64) -> Vec<u8> {
+    let mut out = vec![0u8; w * h * 3];
+    let s = (sigma / 255.0) as f32;
+    let table = normal_table();
+    for y in 0..h {
+        let row_key = mix(key ^ ((y + y0) as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+        let o = &mut out[y * w * 3..(y + 1) * w * 3];
+        for x in 0..w {
+            let i = y * w + x;
+            let mut v = [enc.encode(p[0][i]), enc.encode(p[1][i]), enc.encode(p[2][i])];
+            if sigma > 0.0 {
+                let h = mix(row_key ^ (x + x0) as u64);
+                for (c, vc) in v.iter_mut().enumerate() {
+                    *vc += s * table[(h >> (16 * c)) as usize & 0xFFFF];
+                }
+            }
+            for c in 0..3 {
+                o[x * 3 + c] = (v[c].clamp(0.0, 1.0) * 255.0 + 0.5) as u8;
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::optics::transfer::Curve;
+
+    #[test]
+    fn noise_has_the_asked_sigma_and_no_bias() {
+        // A mid-grey image: encoded 0.5, so clipping never bites at sigma 9.
+        let lin = Curve::Srgb.to_linear(0.5) as f32;
+        let (w, h) = (256, 256);
+        let p: [Vec<f32>; 3] = std::array::from_fn(|_| vec![lin; w * h]);
+        let enc = Encoder::new(Curve::Srgb);
+        for sigma in [0.0, 3.0, 9.0] {
+            let q = quantise(&p, w, h, 0, 0, &enc, sigma, 11);
+            let vals: Vec<f64> = q.iter().map(|&v| v as f64).collect();
+            let mean = vals.iter().sum::<f64>() / vals.len() as f64;
+            let sd = (vals.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / vals.len() as f64).sqrt();
+            // Quantising adds 1/12 of a level of variance.
+            let want = (sigma * sigma + 1.0 / 12.0 * f64::from(sigma > 0.0)).sqrt();
+            assert!((mean - 127.5).abs() < 0.6, "sigma {sigma}: mean {mean}");
+            assert!((sd - want).abs() < 0.05 * want.max(0.5), "sigma {sigma}: sd {sd}, want {want}");
+        }
+    }
+
+    #[test]
+    fn noise_depends_on_absolute_position_only() {
+        let (w, h) = (40, 30);
+        let p: [Vec<f32>; 3] = std::array::from_fn(|c| (0..w * h).map(|i| ((i * 7 + c) % 97) as f32 / 97.0).collect());
+        let enc = Encoder::new(Curve::Srgb);
+        let full = quantise(&p, w, h, 0, 0, &enc, 5.0, 3);
+        let crop = super::super::blur::crop(&p, w, 11, 7, 16, 12);
+        let part = quantise(&crop, 16, 12, 11, 7, &enc, 5.0, 3);
+        for y in 0..12 {
+            assert_eq!(&part[y * 48..(y + 1) * 48], &full[((y + 7) * w + 11) * 3..((y + 7) * w + 27) * 3]);
+        }
+    }
+
+    #[test]
+    fn inverse_cdf_matches_known_quantiles() {
+        assert!((inverse_normal_cdf(0.975) - 1.959964).abs() < 1e-6);
+        assert!((inverse_normal_cdf(0.5)).abs() < 1e-12);
+        assert!((inverse_normal_cdf(0.001) + 3.090232).abs() < 1e-5);
+    }
+}

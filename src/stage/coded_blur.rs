@@ -1,0 +1,199 @@
+//! `coded_blur`: groups linear frames into windows of N (with a stride) and images each window
+//! through a camera ([`crate::imaging::blur::Blurrer`]); the sharp target is the middle frame
+//! (frame N / 2). In patch mode (a `patches` stage downstream with `crop_first`, passed in the
+//! build context), only each patch plus the kernel margin is cut and blurred: the same pixels as
+//! blurring the whole frame.
+
+use super::patches::Selector;
+use super::{BuildContext, Built, Counters, Emit, Kind, Needs, Role, StageConfig, StageError, StageResult, Transform};
+use crate::frame::{Frame, Img, Input, Item, Pair, Sample};
+use crate::imaging::blur::Blurrer;
+use crate::optics::config::Checker;
+use crate::optics::transfer::Curve;
+use crate::optics::{Camera, CameraConfig, ConfigError, OpticsConfig};
+use serde::{Deserialize, Serialize};
+use std::collections::VecDeque;
+use std::sync::Arc;
+
+/// `type = "coded_blur"`: windows of N frames through a camera.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BlurConfig {
+    pub inputs: Vec<String>,
+    /// Sub-frames per window (1 to 64).
+    #[serde(default = "default_window")]
+    pub window: usize,
+    /// Frames between window starts (default: the window, no overlap).
+    #[serde(default)]
+    pub stride: Option<usize>,
+    #[serde(default)]
+    pub camera: CameraConfig,
+    #[serde(default)]
+    pub optics: OpticsConfig,
+    /// Worker threads for the FFTs (0: all cores).
+    #[serde(default)]
+    pub threads: usize,
+    /// Relative error allowed when factorising the window's kernels into fewer FFTs
+    /// (0: exact, one direction per distinct kernel).
+    #[serde(default = "default_rank_tolerance")]
+    pub rank_tolerance: f64,
+}
+
+fn default_rank_tolerance() -> f64 {
+    1e-3
+}
+
+fn default_window() -> usize {
+    9
+}
+
+impl StageConfig for BlurConfig {
+    fn role(&self) -> Role {
+        Role::Transform
+    }
+    fn inputs(&self) -> &[String] {
+        &self.inputs
+    }
+    fn kinds(&self) -> (Kind, Kind) {
+        (Kind::LinearFrames, Kind::Samples)
+    }
+    fn validate(&self, key: &str) -> Vec<ConfigError> {
+        let mut c = Checker::new(key);
+        c.range_usize("window", self.window, 1, 64);
+        if let Some(s) = self.stride {
+            c.range_usize("stride", s, 1, 4096);
+        }
+        c.range_usize("threads", self.threads, 0, 256);
+        c.range("rank_tolerance", self.rank_tolerance, 0.0, 0.1);
+        c.errors.extend(self.camera.validate(&format!("{key}.camera")));
+        c.errors.extend(self.optics.validate(&format!("{key}.optics")));
+        if let Some(v) = &self.camera.psi_values {
+            if v.len() != self.window {
+                c.fail("camera.psi_values", format!("has {} values but window is {}", v.len(), self.window));
+            }
+        }
+        c.errors
+    }
+    fn needs(&self) -> Needs {
+        Needs { frames: self.window as u64, ..Needs::default() }
+    }
+    fn takes_crop(&self) -> bool {
+        true
+    }
+    fn subframes_per_window(&self) -> usize {
+        self.window
+    }
+    fn build(&self, ctx: &BuildContext) -> crate::Result<Built> {
+        let cam = Arc::new(Camera::new(&self.optics, &self.camera));
+        let blurrer = Blurrer::new(cam, self.window, self.threads, self.rank_tolerance)?;
+        let stride = self.stride.unwrap_or(self.window);
+        Ok(Built::Transform(Box::new(CodedBlur::new(blurrer, stride, ctx.seed, ctx.crop.clone(), ctx.counters.clone()))))
+    }
+}
+
+/// The `coded_blur` stage.
+pub struct CodedBlur {
+    pub blurrer: Blurrer,
+    pub stride: usize,
+    pub seed: u64,
+    /// Patch selector when patches are cut before blurring.
+    pub crop_first: Option<Selector>,
+    pub counters: Arc<Counters>,
+    buf: VecDeque<(u64, Arc<Frame>)>,
+    next_start: u64,
+    window: u64,
+    input: Option<Arc<Input>>,
+}
+
+impl CodedBlur {
+    pub fn new(blurrer: Blurrer, stride: usize, seed: u64, crop_first: Option<Selector>, counters: Arc<Counters>) -> CodedBlur {
+        CodedBlur { blurrer, stride, seed, crop_first, counters, buf: VecDeque::new(), next_start: 0, window: 0, input: None }
+    }
+
+    fn emit_window(&mut self, input: &Arc<Input>, out: &mut Emit) -> StageResult {
+        let n = self.blurrer.n;
+        let frames: Vec<Arc<Frame>> = self.buf.iter().take(n).map(|(_, f)| f.clone()).collect();
+        let first = self.buf[0].0;
+        let (w, h) = (frames[0].width, frames[0].height);
+        let mid = &frames[n / 2];
+        let pairs = match &self.crop_first {
+            Some(sel) => {
+                let pos = sel
+                    .positions(self.seed, input.id, self.window, w, h)
+                    .map_err(|e| StageError::Input(input.clone(), format!("{}: {e}", input.path)))?;
+                let lqs = self.blurrer.blur_patches(&frames, &pos, sel.size);
+                pos.into_iter()
+                    .zip(lqs)
+                    .enumerate()
+                    .map(|(i, ((x, y), lq))| {
+                        let gt = mid.linear_crop(x, y, sel.size, sel.size);
+                        Pair { patch: Some(i as u32), x, y, w: sel.size, h: sel.size, lq: Img::Linear(lq), gt: Img::Linear(gt) }
+                    })
+                    .collect()
+            }
+            None => {
+                let lq = self.blurrer.blur_region(&frames, 0, 0, w, h);
+                vec![Pair { patch: None, x: 0, y: 0, w, h, lq: Img::Linear(lq), gt: Img::Linear(mid.linear_crop(0, 0, w, h)) }]
+            }
+        };
+        let kernels = self.blurrer.kernels();
+        let sample = Sample {
+            input: input.clone(),
+            window: self.window,
+            first_frame: first,
+            frames: n,
+            camera: self.blurrer.camera.kind(),
+            psi: kernels.iter().map(|k| k.psi).collect(),
+            // The curve the frames were linearised with (by `linearize`), to re-encode with.
+            curve: mid.curve.unwrap_or(Curve::Identity),
+            sigma: None,
+            light_throughput: self.blurrer.camera.light_throughput(),
+            frame_width: w,
+            frame_height: h,
+            cropped: self.crop_first.is_some(),
+            pairs,
+        };
+        Counters::add(&self.counters.windows, 1);
+        self.window += 1;
+        out.send(Item::Sample(Box::new(sample)));
+        Ok(())
+    }
+}
+
+impl Transform for CodedBlur {
+    fn process(&mut self, item: Item, out: &mut Emit) -> StageResult {
+        match item {
+            Item::Begin(input, info) => {
+                self.buf.clear();
+                self.next_start = 0;
+                self.window = 0;
+                self.input = Some(input.clone());
+                out.send(Item::Begin(input, info));
+            }
+            Item::Frame(input, idx, f) => {
+                if idx >= self.next_start {
+                    self.buf.push_back((idx, f));
+                }
+                while self.buf.len() >= self.blurrer.n {
+                    self.emit_window(&input, out)?;
+                    self.next_start += self.stride as u64;
+                    while self.buf.front().is_some_and(|(i, _)| *i < self.next_start) {
+                        self.buf.pop_front();
+                    }
+                }
+            }
+            Item::End(input, res) => {
+                self.buf.clear();
+                let res = match res {
+                    Ok(()) if self.window == 0 => Err(format!("{}: shorter than one window of {} frames", input.path, self.blurrer.n)),
+                    other => other,
+                };
+                out.send(Item::End(input, res));
+            }
+            other => {
+                out.send(other);
+            }
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,108 @@
+//! `decode`: video files through FFmpeg, frame by frame, as encoded frames.
+
+use super::input::{check_size, VIDEO_EXTS};
+use super::{BuildContext, Built, Counters, Emit, InputList, Kind, Needs, Role, Source, StageConfig};
+use crate::frame::{Input, Item};
+use crate::optics::ConfigError;
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+use std::sync::atomic::Ordering;
+use std::sync::Arc;
+
+/// `type = "decode"`: video files FFmpeg reads.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DecodeConfig {
+    /// Files, folders (their video files) or file-name globs (`clips/*.mp4`).
+    #[serde(default)]
+    pub paths: Vec<String>,
+    /// Stop each video after this many frames (0: all).
+    #[serde(default)]
+    pub max_frames: u64,
+}
+
+impl StageConfig for DecodeConfig {
+    fn role(&self) -> Role {
+        Role::Source
+    }
+    fn kinds(&self) -> (Kind, Kind) {
+        (Kind::EncodedFrames, Kind::EncodedFrames)
+    }
+    fn validate(&self, _key: &str) -> Vec<ConfigError> {
+        Vec::new()
+    }
+    fn list(&self) -> crate::Result<InputList> {
+        crate::config::expand_paths(&self.paths, VIDEO_EXTS).map(InputList::Files)
+    }
+    fn build(&self, ctx: &BuildContext) -> crate::Result<Built> {
+        Ok(Built::Source(Box::new(Decode {
+            inputs: ctx.inputs.iter().map(|(i, p)| (i.clone(), p.clone().expect("decode inputs are files"))).collect(),
+            max_frames: self.max_frames,
+            needs: ctx.needs,
+            counters: ctx.counters.clone(),
+        })))
+    }
+}
+
+pub struct Decode {
+    pub inputs: Vec<(Arc<Input>, PathBuf)>,
+    pub max_frames: u64,
+    pub needs: Needs,
+    pub counters: Arc<Counters>,
+}
+
+impl Source for Decode {
+    fn run(&mut self, out: &mut Emit) -> crate::Result<()> {
+        use crate::io::video::VideoReader;
+        for (input, path) in &self.inputs {
+            let fail = |msg: String| Item::End(input.clone(), Err(format!("{}: {msg}", path.display())));
+            let mut reader = match VideoReader::open(path) {
+                Ok(r) => r,
+                Err(e) => {
+                    if !out.send(fail(e)) {
+                        return Ok(());
+                    }
+                    continue;
+                }
+            };
+            if let Err(e) = check_size(&reader.info, &self.needs) {
+                if !out.send(fail(e)) {
+                    return Ok(());
+                }
+                continue;
+            }
+            if !out.send(Item::Begin(input.clone(), reader.info.clone())) {
+                return Ok(());
+            }
+            let mut n = 0u64;
+            let end = loop {
+                if out.stop.load(Ordering::Relaxed) {
+                    return Ok(());
+                }
+                if self.max_frames > 0 && n >= self.max_frames {
+                    break Ok(());
+                }
+                match reader.next_frame() {
+                    Ok(Some(f)) => {
+                        Counters::add(&self.counters.frames, 1);
+                        if !out.send(Item::Frame(input.clone(), n, Arc::new(f))) {
+                            return Ok(());
+                        }
+                        n += 1;
+                    }
+                    Ok(None) => match reader.info.frames_announced {
+                        Some(a) if n < a => break Err(format!("truncated: decoded {n} of the {a} frames the container announces")),
+                        _ => break Ok(()),
+                    },
+                    Err(e) => break Err(e),
+                }
+            };
+            self.counters.input(&input.path, &reader.info, n);
+            let end = end.map_err(|e| format!("{}: {e}", path.display()));
+            if !out.send(Item::End(input.clone(), end)) {
+                return Ok(());
+            }
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,66 @@
+//! `linearize`: marks frames as linear light through a transfer curve.
+
+use super::{BuildContext, Built, Emit, Kind, Role, StageConfig, StageResult, Transform};
+use crate::frame::{Frame, Item};
+use crate::optics::transfer::Curve;
+use crate::optics::ConfigError;
+use serde::{Deserialize, Serialize};
+use std::sync::Arc;
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LinearizeConfig {
+    pub inputs: Vec<String>,
+    #[serde(default = "default_curve")]
+    pub curve: Curve,
+}
+
+fn default_curve() -> Curve {
+    Curve::Srgb
+}
+
+impl StageConfig for LinearizeConfig {
+    fn role(&self) -> Role {
+        Role::Transform
+    }
+    fn inputs(&self) -> &[String] {
+        &self.inputs
+    }
+    fn kinds(&self) -> (Kind, Kind) {
+        (Kind::EncodedFrames, Kind::LinearFrames)
+    }
+    fn validate(&self, _key: &str) -> Vec<ConfigError> {
+        Vec::new()
+    }
+    fn build(&self, _ctx: &BuildContext) -> crate::Result<Built> {
+        Ok(Built::Transform(Box::new(Linearize::new(self.curve))))
+    }
+}
+
+/// `linearize`: marks frames as linear light through `curve`. The pixels are converted lazily,
+/// by table, where they are read ([`Frame::linear_row`]): patch mode converts only its patches.
+pub struct Linearize {
+    curve: Curve,
+}
+
+impl Linearize {
+    pub fn new(curve: Curve) -> Linearize {
+        Linearize { curve }
+    }
+
+    /// The same pixels, tagged with the curve.
+    pub fn apply(&self, f: &Frame) -> Frame {
+        Frame { curve: Some(self.curve), ..f.clone() }
+    }
+}
+
+impl Transform for Linearize {
+    fn process(&mut self, item: Item, out: &mut Emit) -> StageResult {
+        let item = match item {
+            Item::Frame(input, i, f) => Item::Frame(input, i, Arc::new(self.apply(&f))),
+            other => other,
+        };
+        out.send(item);
+        Ok(())
+    }
+}
