@@ -5,21 +5,17 @@
 //!
 //! - [`optics`]: the pupil, PSFs on the pixel grid, and the five cameras (pure math).
 //! - [`io`]: atomic writes, `.npy`, OpenEXR, PNG.
-//! - [`psfcmd`]: `pipeline psf`, which computes PSFs and writes them for people and tools.
-//! - [`scene`], [`recon`], `figure`: synthetic scenes, the classical reconstructions of the other
-//!   cameras, and the paper's comparison figures.
-//! - `deblur`, `eval` (feature `train`): running and scoring the networks.
+//! - [`stage`]: one file per pipeline stage (config, checks, runtime); [`config`] the topology,
+//!   [`graph`] the threads and channels; [`imaging`] what a camera does to a window.
+//! - [`model`], [`train`] (feature `train`): the networks, their fast CPU path, training.
+//! - [`commands`]: one file per command (psf, generate/run/validate, train, deblur, eval,
+//!   figure, bench); [`cli`] parses and dispatches.
+//! - [`scene`], [`recon`]: synthetic scenes and the classical reconstructions of the other cameras.
 
-pub mod bench;
 pub mod cli;
+pub mod commands;
 pub mod config;
-#[cfg(feature = "train")]
-pub mod deblur;
 pub mod error;
-#[cfg(all(feature = "train", feature = "ffmpeg"))]
-pub mod eval;
-#[cfg(feature = "train")]
-pub mod figure;
 pub mod frame;
 pub mod graph;
 pub mod imaging;
@@ -30,7 +26,6 @@ pub mod model;
 pub mod optics;
 pub mod plot;
 pub mod provenance;
-pub mod psfcmd;
 pub mod recon;
 pub mod rng;
 pub mod scene;

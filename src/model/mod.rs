@@ -13,6 +13,7 @@
 //! to a multiple of 16 (edge replication) and crops back.
 
 pub mod fast;
+pub mod infer;
 
 use burn::module::Module;
 use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfig};

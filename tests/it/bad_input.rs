@@ -147,3 +147,14 @@ fn doing_nothing_is_a_usage_error_and_writes_nothing() {
         assert!(!out.exists(), "{args:?} wrote {}", out.display());
     }
 }
+
+#[cfg(feature = "train")]
+#[test]
+fn a_trainer_sink_names_the_keys_written_under_it() {
+    let cfg = concat!(env!("CARGO_MANIFEST_DIR"), "/pipelines/train-stream.toml");
+    let o = run(&["validate", cfg, "--set", "sinks.train.val_fraction=5", "--set", "sinks.train.checkpoint_every=0"]);
+    assert_eq!(o.status.code(), Some(2));
+    let out = String::from_utf8_lossy(&o.stdout);
+    assert!(out.contains("sinks.train.val_fraction") && out.contains("sinks.train.checkpoint_every"), "{out}");
+    assert!(!out.contains("data.val_fraction") && !out.contains("output.checkpoint_every"), "{out}");
+}

@@ -3,8 +3,8 @@
 
 use crate::common::*;
 use burn::tensor::Device;
-use pipeline::deblur::{run_frame, Tiling};
 use pipeline::model::fast::FastNet;
+use pipeline::model::infer::{run_frame, Tiling};
 use pipeline::model::{Arch, Net};
 
 fn probe(path: &std::path::Path) -> String {
@@ -60,7 +60,7 @@ fn tiles_match_the_whole_frame_and_an_identity_model_gives_the_input_back() {
         (0..w * h * 3).map(|i| ((i / 3 % w) as f64 * 1.7 + (i / 3 / w) as f64 * 0.9 + (i % 3) as f64 * 40.0) as u8).collect();
     let identity = FastNet::from_net(&Net::new(Arch::Shallow { width: 8 }, &dev).zero_last_layer(&dev));
     assert!(run_frame(&identity, &rgb, w, h, Tiling { tile: 64, overlap: 16 }) == rgb);
-    let (net, _) = pipeline::deblur::load(None).unwrap();
+    let (net, _) = pipeline::model::infer::load(None).unwrap();
     let whole = run_frame(&net, &rgb, w, h, Tiling { tile: 256, overlap: 0 });
     // The default model is a U-Net (receptive field over 100 px): tiles with a wide overlap.
     let tiled = run_frame(&net, &rgb, w, h, Tiling { tile: 112, overlap: 48 });
@@ -111,7 +111,7 @@ fn png_jpeg_tiff_and_exr_keep_names_and_formats_and_an_identity_model_keeps_the_
 
     let dev = Device::flex();
     let identity = FastNet::from_net(&Net::new(Arch::Shallow { width: 8 }, &dev).zero_last_layer(&dev));
-    let r = pipeline::deblur::images(&identity, "identity", &src, &dst, Tiling { tile: 64, overlap: 16 }, false).unwrap();
+    let r = pipeline::commands::deblur::images(&identity, "identity", &src, &dst, Tiling { tile: 64, overlap: 16 }, false).unwrap();
     assert_eq!(r.frames, 4);
     assert_eq!(files(&dst), vec!["a.jpg", "b.tif", "c.png", "d.exr"]);
     let magic = |n: &str| std::fs::read(dst.join(n)).unwrap()[..4].to_vec();
@@ -123,7 +123,7 @@ fn png_jpeg_tiff_and_exr_keep_names_and_formats_and_an_identity_model_keeps_the_
     let read = |p: std::path::PathBuf| {
         let (f, float) = pipeline::io::video::read_image(&p).unwrap();
         assert_eq!((f.width, f.height), (w, h));
-        pipeline::deblur::to_rgb8(&f, float)
+        pipeline::commands::deblur::to_rgb8(&f, float)
     };
     let worst = |a: &[u8], b: &[u8]| a.iter().zip(b).map(|(x, y)| (*x as i32 - *y as i32).abs()).max().unwrap();
     for name in ["b.tif", "c.png", "d.exr"] {

@@ -2,7 +2,7 @@
 //! shows, the sharp panel is the right frame of the video, and bad keys are named.
 
 use crate::common::*;
-use pipeline::eval::{GAP, LABEL_H};
+use pipeline::commands::eval::{GAP, LABEL_H};
 
 /// PSNR of two equally long 8-bit buffers, written out here rather than taken from the crate.
 fn psnr_by_hand(a: &[u8], b: &[u8]) -> f64 {

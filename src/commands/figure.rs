@@ -355,8 +355,8 @@ fn spoke(o: &FigureOptions, out: &Path) -> Result<Vec<Score>> {
         }
         Ok(crate::model::fast::FastNet::from_net(&crate::train::load_model(&p, &device)?.0))
     };
-    let d = crate::deblur::DeblurConfig::default();
-    let tiling = crate::deblur::Tiling { tile: d.tile, overlap: d.overlap };
+    let d = crate::commands::deblur::DeblurConfig::default();
+    let tiling = crate::model::infer::Tiling { tile: d.tile, overlap: d.overlap };
     let mut panels = vec![Panel::from_rgb8("(A) ROTATING TARGET, SHARP", w, h, &sharp)];
     let mut recon_panels = vec![Panel { label: String::new(), w, h, px: std::array::from_fn(|_| vec![1.0; w * h]) }];
     let mut scores = Vec::new();
@@ -367,9 +367,9 @@ fn spoke(o: &FigureOptions, out: &Path) -> Result<Vec<Score>> {
         let (img, sigma) = capture(&frames, w, h, &cam, o.sigma, key)?;
         let (method, rec) = match kind {
             CameraKind::Conventional => {
-                ("U-Net 16 (conventional)", crate::deblur::run_frame(&model("unet16-conventional")?, &img, w, h, tiling))
+                ("U-Net 16 (conventional)", crate::model::infer::run_frame(&model("unet16-conventional")?, &img, w, h, tiling))
             }
-            CameraKind::PhaseCoded => ("U-Net 16 (coded)", crate::deblur::run_frame(&model("unet16-coded")?, &img, w, h, tiling)),
+            CameraKind::PhaseCoded => ("U-Net 16 (coded)", crate::model::infer::run_frame(&model("unet16-coded")?, &img, w, h, tiling)),
             CameraKind::Flutter => {
                 // The code for motion to the right over the rim's extent, as in the paper.
                 let solver = FlutterSolver::new(w, &cam.weights(o.frames), o.travel_px, Ends::Extend, o.flutter_lambda);
@@ -521,4 +521,66 @@ mod tests {
             assert!((centroid - x).abs() < 1e-9, "row {k}: {centroid} vs {x}");
         }
     }
+}
+
+#[derive(clap::Args, Debug)]
+pub struct FigureArgs {
+    /// Which figure.
+    #[arg(value_enum)]
+    pub name: FigureName,
+    /// Output PNG.
+    #[arg(short, long)]
+    pub out: PathBuf,
+    /// AWGN sigma on the 0-255 scale (the fluttered shutter gets twice: half the light).
+    #[arg(long, default_value_t = 3.0)]
+    pub sigma: f64,
+    /// Pixels travelled over the exposure by the fastest dot / the spoke target's rim.
+    #[arg(long, default_value_t = 16.0)]
+    pub travel: f64,
+    /// Scene side in pixels.
+    #[arg(long, default_value_t = 192)]
+    pub size: usize,
+    /// Folder with the shipped models (unet16-coded, unet16-conventional).
+    #[arg(long, default_value = "models")]
+    pub models: PathBuf,
+    /// Seed of the noise.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+    /// Lucy-Richardson iterations for the parabolic camera (spoke).
+    #[arg(long, default_value_t = 30, value_parser = clap::value_parser!(u32).range(1..=10_000))]
+    pub lr_iterations: u32,
+    /// Tikhonov weight of the flutter least squares (spoke), above 0: an image row does not
+    /// see the scene beyond the frame, so plain least squares is singular there.
+    #[arg(long, default_value_t = 1e-2)]
+    pub flutter_lambda: f64,
+}
+
+/// Runs `pipeline figure`.
+///
+/// # Errors
+/// Whatever the command reports (exit codes in `main.rs`).
+pub fn command(a: FigureArgs) -> anyhow::Result<()> {
+    let FigureArgs { name, out, sigma, travel, size, models, seed, lr_iterations, flutter_lambda } = a;
+    if !(0.0..=50.0).contains(&sigma) || !(0.0..=200.0).contains(&travel) || !(32..=2048).contains(&size) {
+        anyhow::bail!("--sigma must be in 0..50, --travel in 0..200 and --size in 32..2048");
+    }
+    if !(flutter_lambda > 0.0 && flutter_lambda <= 10.0) {
+        anyhow::bail!("--flutter-lambda must be above 0 and at most 10 (got {flutter_lambda})");
+    }
+    let o = crate::commands::figure::FigureOptions {
+        sigma,
+        travel_px: travel,
+        size,
+        models,
+        seed,
+        lr_iterations: lr_iterations as usize,
+        flutter_lambda,
+        ..Default::default()
+    };
+    let r = crate::commands::figure::draw(name, &o, &out)?;
+    if !r.scores.is_empty() {
+        println!("{}", crate::commands::figure::scores_markdown(&r));
+    }
+    eprintln!("figure {:?} -> {}", name, out.display());
+    Ok(())
 }

@@ -4,19 +4,18 @@
 //! The network takes encoded sRGB values in [0, 1] (as the training pairs are written), so frames
 //! go in as decoded. Audio is not copied (the report says so).
 
+use super::ConfigArgs;
 use crate::io::{png as png_io, write_atomic};
-use crate::model::fast::{FastNet, T4};
+use crate::model::fast::FastNet;
+use crate::model::infer::{run_frame, Tiling};
 use crate::{Error, Result};
-use burn::tensor::Device;
+use anyhow::bail;
+use clap::Args;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// The model `deblur` uses without `--model`: the shipped U-Net 16 trained on the coded camera
-/// (the best coded model on the held-out test clips, docs/eval.md; 3.7 MB).
-pub const DEFAULT_MODEL: &[u8] = include_bytes!("../models/unet16-coded/model.safetensors");
-
 /// The default deblur file, embedded.
-pub const DEBLUR_TOML: &str = include_str!("../pipelines/deblur.toml");
+pub const DEBLUR_TOML: &str = include_str!("../../pipelines/deblur.toml");
 
 /// A deblur file (`pipelines/deblur.toml`): `[deblur]`.
 #[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
@@ -39,7 +38,8 @@ pub struct DeblurConfig {
 
 impl Default for DeblurConfig {
     fn default() -> Self {
-        DeblurConfig { model: String::new(), tile: 1280, overlap: 64, lossless: false }
+        let t = Tiling::default();
+        DeblurConfig { model: String::new(), tile: t.tile, overlap: t.overlap, lossless: false }
     }
 }
 
@@ -62,76 +62,6 @@ impl DeblurFile {
         }
         Ok(f)
     }
-}
-
-/// Tiling of a frame: square tiles of `tile` pixels overlapping by `overlap`.
-#[derive(Debug, Clone, Copy)]
-pub struct Tiling {
-    pub tile: usize,
-    pub overlap: usize,
-}
-
-/// Tiles of at most `t` covering `0..n`, overlapping by at least `o`: as few as that allows,
-/// all of one size, spread evenly (so no tile is mostly overlap). Returns the size and the
-/// start positions.
-fn tiles_1d(n: usize, t: usize, o: usize) -> (usize, Vec<usize>) {
-    if n <= t {
-        return (n, vec![0]);
-    }
-    let count = (n - o).div_ceil(t - o);
-    let size = (n + (count - 1) * o).div_ceil(count);
-    let step = size - o;
-    (size, (0..count).map(|i| (i * step).min(n - size)).collect())
-}
-
-/// Blending weight of position `i` in a tile of length `len` placed at `start` in `0..n`: a
-/// linear ramp over the overlap, except at the frame's own borders.
-fn ramp(i: usize, len: usize, start: usize, n: usize, o: usize) -> f32 {
-    let mut w = 1.0f32;
-    if start > 0 && i < o {
-        w = w.min((i as f32 + 0.5) / o as f32);
-    }
-    if start + len < n && i + o >= len {
-        w = w.min((len - i) as f32 / o as f32 - 0.5 / o as f32);
-    }
-    w.max(1e-3)
-}
-
-/// Runs `net` on one interleaved 8-bit RGB frame, whole or in blended tiles. Each tile's
-/// forward pass runs on all cores; tiles only bound the memory, and are blended in a fixed
-/// order, so the result does not depend on the number of threads.
-pub fn run_frame(net: &FastNet, rgb: &[u8], w: usize, h: usize, tiling: Tiling) -> Vec<u8> {
-    let (t, o) = (tiling.tile.max(16), tiling.overlap.min(tiling.tile / 2));
-    let ((tw, xs), (th, ys)) = (tiles_1d(w, t, o), tiles_1d(h, t, o));
-    let tiles: Vec<(usize, usize)> = ys.iter().flat_map(|&y0| xs.iter().map(move |&x0| (x0, y0))).collect();
-    let forward = |&(x0, y0): &(usize, usize)| -> Vec<f32> {
-        let mut v = vec![0.0f32; 3 * tw * th];
-        for y in 0..th {
-            for x in 0..tw {
-                for c in 0..3 {
-                    v[c * tw * th + y * tw + x] = rgb[((y0 + y) * w + x0 + x) * 3 + c] as f32 / 255.0;
-                }
-            }
-        }
-        net.forward(&T4::new(1, 3, th, tw, v)).d
-    };
-    let outs: Vec<Vec<f32>> = tiles.iter().map(forward).collect();
-    let mut acc = vec![0.0f32; w * h * 3];
-    let mut wsum = vec![0.0f32; w * h];
-    for (&(x0, y0), out) in tiles.iter().zip(&outs) {
-        for y in 0..th {
-            let wy = ramp(y, th, y0, h, o);
-            for x in 0..tw {
-                let wgt = wy * ramp(x, tw, x0, w, o);
-                let p = (y0 + y) * w + x0 + x;
-                wsum[p] += wgt;
-                for c in 0..3 {
-                    acc[p * 3 + c] += wgt * out[c * tw * th + y * tw + x];
-                }
-            }
-        }
-    }
-    acc.iter().enumerate().map(|(i, v)| ((v / wsum[i / 3]).clamp(0.0, 1.0) * 255.0).round() as u8).collect()
 }
 
 /// `report.json` of a deblur run.
@@ -408,20 +338,6 @@ fn progress_bar(len: u64) -> indicatif::ProgressBar {
     b
 }
 
-/// Loads `--model`, or the embedded default.
-///
-/// # Errors
-/// As [`crate::train::load_model`].
-pub fn load(model: Option<&Path>) -> Result<(FastNet, String)> {
-    let device = Device::flex();
-    let (net, name) = match model {
-        Some(p) => crate::train::load_model(p, &device).map(|(n, a)| (n, format!("{} ({})", p.display(), a.name())))?,
-        None => crate::train::load_model_bytes(DEFAULT_MODEL, "embedded models/unet16-coded", &device)
-            .map(|(n, a)| (n, format!("models/unet16-coded ({})", a.name())))?,
-    };
-    Ok((FastNet::from_net(&net), name))
-}
-
 /// Writes the report beside the output.
 ///
 /// # Errors
@@ -431,19 +347,67 @@ pub fn write_report(path: &Path, r: &DeblurReport) -> Result<()> {
     write_atomic(path, |w| w.write_all(&bytes))
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
+#[derive(Args, Debug)]
+pub struct DeblurArgs {
+    /// A video FFmpeg reads, or a folder (or glob) of PNG, JPEG, TIFF or OpenEXR images.
+    pub input: PathBuf,
+    /// Output video (.mp4, .mkv, .mov...) or folder.
+    #[arg(short, long)]
+    pub out: PathBuf,
+    /// A model written by `pipeline train`; default: the shipped U-Net 16 (coded camera).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Tile size in pixels (frames are processed in tiles with blended seams); default 1280 (a 720p frame in one pass; smaller tiles use less memory).
+    #[arg(long)]
+    pub tile: Option<usize>,
+    /// Overlap between tiles in pixels; default 64 (the U-Net sees about 100 px around a pixel).
+    #[arg(long)]
+    pub overlap: Option<usize>,
+    /// Lossless output (FFV1 RGB in .mkv) instead of H.264.
+    #[arg(long)]
+    pub lossless: bool,
+    #[command(flatten)]
+    pub file: ConfigArgs,
+}
 
-    #[test]
-    fn tiles_cover_the_frame_with_the_overlap() {
-        assert_eq!(tiles_1d(100, 128, 16), (100, vec![0]));
-        for (n, t, o) in [(300, 128, 32), (720, 256, 32), (1280, 384, 32), (1081, 200, 17)] {
-            let (size, s) = tiles_1d(n, t, o);
-            assert!(size <= t && s[0] == 0 && s.last().unwrap() + size == n, "{n} {t} {o}: {size} {s:?}");
-            assert!(s.windows(2).all(|p| p[0] + size >= p[1] + o), "{n} {t} {o}: overlap below {o}: {s:?}");
-        }
-        // Evenly spread: 720 in tiles of at most 256 needs 4, each 204 (not 3 of 256 and a sliver).
-        assert_eq!(tiles_1d(720, 256, 32), (204, vec![0, 172, 344, 516]));
+/// Runs `pipeline deblur`.
+///
+/// # Errors
+/// Whatever the command reports (exit codes in `main.rs`).
+pub fn command(a: DeblurArgs) -> anyhow::Result<()> {
+    let DeblurArgs { input, out, model, tile, overlap, lossless, file } = a;
+    let same = input.canonicalize().ok().zip(out.canonicalize().ok()).is_some_and(|(a, b)| a == b) || input == out;
+    if same {
+        bail!("{}: the output is the input; choose another output path", out.display());
     }
+    let (table, origin) = file.load(crate::commands::deblur::DEBLUR_TOML, "pipelines/deblur.toml")?;
+    let mut d = crate::commands::deblur::DeblurFile::from_table(table, &origin)?.deblur;
+    d.tile = tile.unwrap_or(d.tile);
+    d.overlap = overlap.unwrap_or(d.overlap);
+    let lossless = lossless || d.lossless;
+    let model = model.or_else(|| (!d.model.is_empty()).then(|| PathBuf::from(&d.model)));
+    let (net, name) = crate::model::infer::load(model.as_deref())?;
+    let tiling = crate::model::infer::Tiling { tile: d.tile, overlap: d.overlap };
+    let bar = file.bar();
+    let r = if input.is_dir() || input.to_string_lossy().contains('*') {
+        crate::commands::deblur::images(&net, &name, &input, &out, tiling, bar)?
+    } else {
+        crate::commands::deblur::video(&net, &name, &input, &out, tiling, lossless, bar)?
+    };
+    let rp = if out.is_dir() { out.join("report.json") } else { PathBuf::from(format!("{}.report.json", out.display())) };
+    crate::commands::deblur::write_report(&rp, &r)?;
+    eprintln!(
+        "{} frames of {}x{} in {:.1} s ({:.2} frames/s) with {} -> {}",
+        r.frames,
+        r.width,
+        r.height,
+        r.seconds,
+        r.frames_per_s,
+        r.model,
+        out.display()
+    );
+    if !r.failed.is_empty() {
+        return Err(crate::Error::InputsFailed(r.failed.len()).into());
+    }
+    Ok(())
 }

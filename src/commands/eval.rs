@@ -8,7 +8,6 @@
 //! so the columns differ only in the noise level.
 
 use crate::config::expand_paths;
-use crate::deblur::{run_frame, Tiling};
 use crate::frame::Frame;
 use crate::imaging::blur::Blurrer;
 use crate::imaging::{read_out, to_8bit};
@@ -16,6 +15,7 @@ use crate::io::video::VideoReader;
 use crate::io::write_atomic;
 use crate::metrics::{quality, Quality};
 use crate::model::fast::FastNet;
+use crate::model::infer::{run_frame, Tiling};
 use crate::optics::config::Checker;
 use crate::optics::transfer::{Curve, Encoder};
 use crate::optics::{Camera, CameraConfig, ConfigError, OpticsConfig};
@@ -416,7 +416,7 @@ pub fn markdown(r: &EvalReport) -> String {
 }
 
 /// The default eval file, embedded.
-pub const EVAL_TOML: &str = include_str!("../pipelines/eval.toml");
+pub const EVAL_TOML: &str = include_str!("../../pipelines/eval.toml");
 
 #[cfg(test)]
 mod tests {
@@ -442,4 +442,42 @@ mod tests {
         assert_eq!(region(320, 240, 128), [96, 56, 128, 128]);
         assert_eq!(region(100, 60, 80), [10, 0, 80, 60]);
     }
+}
+
+#[derive(clap::Args, Debug)]
+pub struct EvalArgs {
+    /// Videos (files, folders or globs) at a high frame rate: each frame is one sub-frame.
+    #[arg(required = true)]
+    pub videos: Vec<String>,
+    /// Output folder.
+    #[arg(short, long, default_value = "eval-out")]
+    pub out: std::path::PathBuf,
+    /// A model written by `pipeline train`; default: the shipped U-Net 16 (coded camera).
+    #[arg(long)]
+    pub model: Option<std::path::PathBuf>,
+    /// The camera that blurs the test windows (overrides camera.type); use the one the model
+    /// was trained for.
+    #[arg(long, value_enum)]
+    pub camera: Option<crate::optics::CameraKind>,
+    #[command(flatten)]
+    pub file: super::ConfigArgs,
+}
+
+/// Runs `pipeline eval`.
+///
+/// # Errors
+/// Whatever the command reports (exit codes in `main.rs`).
+pub fn command(a: EvalArgs) -> anyhow::Result<()> {
+    let EvalArgs { videos, out, model, camera, file } = a;
+    let (table, origin) = file.load(crate::commands::eval::EVAL_TOML, "pipelines/eval.toml")?;
+    let mut f = crate::commands::eval::EvalFile::from_table(table, &origin)?;
+    if let Some(k) = camera {
+        f.camera.kind = k;
+    }
+    let (net, name) = crate::model::infer::load(model.as_deref())?;
+    let bar = file.bar();
+    let r = crate::commands::eval::run(&f, &net, &name, &videos, &out, bar)?;
+    println!("{}", crate::commands::eval::markdown(&r));
+    eprintln!("{} windows scored in {:.0} s -> {}", r.records.len(), r.seconds, out.join("eval.md").display());
+    Ok(())
 }

@@ -448,7 +448,7 @@ pub struct DeblurSpeed {
 /// beside PyTorch on the same architecture when torch is installed.
 #[cfg(feature = "train")]
 pub fn deblur(width: usize, height: usize, repeats: usize) -> crate::Result<Vec<DeblurSpeed>> {
-    use crate::deblur::{run_frame, Tiling};
+    use crate::model::infer::{run_frame, Tiling};
     use crate::model::Arch;
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let script = torch_script();
@@ -478,7 +478,7 @@ pub fn deblur(width: usize, height: usize, repeats: usize) -> crate::Result<Vec<
             1.0 / median(&mut t)
         };
         let whole = time(Tiling { tile: width.max(height), overlap: 0 });
-        let d = crate::deblur::DeblurConfig::default();
+        let d = crate::commands::deblur::DeblurConfig::default();
         let tiled = time(Tiling { tile: d.tile, overlap: d.overlap });
         let torch_row: Option<serde_json::Value> = if let Some(script) = &script {
             let (kind, w) = match arch {
@@ -518,4 +518,112 @@ pub fn deblur(width: usize, height: usize, repeats: usize) -> crate::Result<Vec<
         });
     }
     Ok(out)
+}
+
+#[derive(clap::Subcommand, Debug)]
+pub enum BenchCommand {
+    /// Deblurring speed (frames/s) of each shipped model on a 1280x720 frame, whole and in
+    /// tiles, beside PyTorch CPU on the same architecture when torch is installed.
+    #[cfg(feature = "train")]
+    Deblur {
+        #[arg(long, default_value_t = 1280)]
+        width: usize,
+        #[arg(long, default_value_t = 720)]
+        height: usize,
+        /// Repeats; the median is reported.
+        #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u16).range(1..=1000))]
+        repeats: u16,
+    },
+    /// Time to build the kernels of one window, cold (new camera) and from the cache.
+    Psf {
+        #[arg(long, value_enum, default_value_t = CameraKind::PhaseCoded)]
+        camera: CameraKind,
+        /// Sub-frames per window.
+        #[arg(long, default_value_t = 9, value_parser = clap::value_parser!(u16).range(1..=64))]
+        window: u16,
+        /// Repeats; the median is reported.
+        #[arg(long, default_value_t = 7, value_parser = clap::value_parser!(u16).range(1..=1000))]
+        repeats: u16,
+    },
+    /// Generation speed (full frame and patch mode) beside FFmpeg's decode-only speed of the
+    /// same clip, which it makes with the ffmpeg CLI; peak memory on a clip twice as long.
+    Generate {
+        #[arg(long, default_value_t = 1280)]
+        width: usize,
+        #[arg(long, default_value_t = 720)]
+        height: usize,
+        #[arg(long, default_value_t = 240)]
+        fps: u32,
+        /// Length of the clip.
+        #[arg(long, default_value_t = 2.0)]
+        seconds: f64,
+        /// Repeats; the median is reported.
+        #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u16).range(1..=100))]
+        repeats: u16,
+    },
+    /// Training step and forward speed per 128x128 patch of shallow-32 and U-Net 16, 32 and 64
+    /// on the fast CPU path, beside PyTorch CPU on the same architectures with the same thread
+    /// count (RAYON_NUM_THREADS, else all cores) when torch is importable by python3 or by
+    /// $PIPELINE_PYTHON; prints each time ratio (ours / PyTorch's) and JSON on stdout.
+    #[cfg(feature = "train")]
+    Train {
+        /// Patches per training step.
+        #[arg(long, default_value_t = 8)]
+        batch: usize,
+        /// Repeats; the median is reported.
+        #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u16).range(1..=100))]
+        repeats: u16,
+        /// Skip the paper's full-width U-Net (base 64).
+        #[arg(long)]
+        quick: bool,
+        /// Also time burn's own CPU path (the reference the fast path replaces; slow).
+        #[arg(long)]
+        burn: bool,
+    },
+}
+
+/// Runs `pipeline bench ...`.
+///
+/// # Errors
+/// A benchmark that cannot run (no ffmpeg CLI, an unwritable temporary folder).
+pub fn command(c: BenchCommand) -> anyhow::Result<()> {
+    match c {
+        #[cfg(feature = "train")]
+        BenchCommand::Train { batch, repeats, quick, burn } => {
+            use crate::model::Arch;
+            let mut archs = vec![Arch::Shallow { width: 32 }, Arch::Unet { base: 16 }, Arch::Unet { base: 32 }];
+            if !quick {
+                archs.push(Arch::Unet { base: 64 });
+            }
+            let r = train(&archs, batch, repeats as usize, burn)?;
+            println!("{}", serde_json::to_string_pretty(&r)?);
+            Ok(())
+        }
+        #[cfg(feature = "train")]
+        BenchCommand::Deblur { width, height, repeats } => {
+            let r = deblur(width, height, repeats as usize)?;
+            println!("{}", serde_json::to_string_pretty(&r)?);
+            Ok(())
+        }
+        BenchCommand::Generate { width, height, fps, seconds, repeats } => {
+            let r = generate(width, height, fps, seconds, repeats as usize)?;
+            println!("{}", serde_json::to_string_pretty(&r)?);
+            Ok(())
+        }
+        BenchCommand::Psf { camera, window, repeats } => {
+            let r = psf(camera, window as usize, repeats as usize);
+            eprintln!(
+                "{} window {}: kernels {} px; cold {:.1} ms (median of {}), cached {:.2} us; ratio {:.0}x",
+                r.camera,
+                r.window,
+                r.kernel_px,
+                r.cold_ms_median,
+                r.repeats,
+                r.cached_us_median,
+                r.cold_ms_median * 1e3 / r.cached_us_median.max(1e-9)
+            );
+            println!("{}", serde_json::to_string_pretty(&r)?);
+            Ok(())
+        }
+    }
 }

@@ -1,0 +1,237 @@
+//! `pipeline generate`, `run` and `validate`: pipelines from the command line.
+
+use super::psf::OpticsFile;
+use crate::graph::{ProgressMode, RunOptions};
+use clap::Args;
+use std::path::PathBuf;
+
+/// Options shared by the commands that run a pipeline.
+#[derive(Args, Debug, Clone)]
+pub struct RunCommon {
+    /// Override one key of the pipeline file: --set transforms.noise.sigma=3 (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub sets: Vec<String>,
+    /// This task's share of the sorted inputs (input i goes to task i % count). Default:
+    /// SLURM_ARRAY_TASK_ID or JOB_COMPLETION_INDEX, else 0.
+    #[arg(long)]
+    pub shard_index: Option<usize>,
+    /// Number of tasks. Default: SLURM_ARRAY_TASK_COUNT, else 1.
+    #[arg(long)]
+    pub shard_count: Option<usize>,
+    /// Progress display on stderr.
+    #[arg(long, value_enum, default_value_t = ProgressMode::Auto)]
+    pub progress: ProgressMode,
+}
+
+#[derive(Args, Debug)]
+pub struct GenerateArgs {
+    /// Video files, folders of videos, or file-name globs; default: the pipeline's paths.
+    pub videos: Vec<String>,
+    /// Output folder (shards, manifest.json, report.json).
+    #[arg(short, long)]
+    pub out: Option<PathBuf>,
+    /// Pipeline file instead of the embedded pipelines/generate.toml.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    #[command(flatten)]
+    pub common: RunCommon,
+}
+
+#[derive(Args, Debug)]
+pub struct RunArgs {
+    /// Pipeline file (TOML).
+    pub pipeline: PathBuf,
+    /// Output folder (sets the sink's dir).
+    #[arg(short, long)]
+    pub out: Option<PathBuf>,
+    #[command(flatten)]
+    pub common: RunCommon,
+}
+
+#[derive(Args, Debug)]
+pub struct ValidateArgs {
+    /// Pipeline files.
+    #[arg(required = true)]
+    pub pipelines: Vec<PathBuf>,
+    /// key.path=value overrides, as for `run`.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub sets: Vec<String>,
+}
+
+/// The default generate pipeline, embedded.
+pub const GENERATE_TOML: &str = include_str!("../../pipelines/generate.toml");
+
+fn env_usize(name: &str) -> anyhow::Result<Option<usize>> {
+    match std::env::var(name) {
+        Ok(v) if !v.trim().is_empty() => v.trim().parse().map(Some).map_err(|_| anyhow::anyhow!("{name}={v:?} is not a whole number")),
+        _ => Ok(None),
+    }
+}
+
+/// Task index and count from flags, then Slurm or Kubernetes variables.
+fn task_split(c: &RunCommon) -> anyhow::Result<(usize, usize)> {
+    let (index, index_from) = match c.shard_index {
+        Some(i) => (i, "--shard-index"),
+        None => match (env_usize("SLURM_ARRAY_TASK_ID")?, env_usize("JOB_COMPLETION_INDEX")?) {
+            (Some(i), _) => (i, "SLURM_ARRAY_TASK_ID"),
+            (None, Some(i)) => (i, "JOB_COMPLETION_INDEX"),
+            (None, None) => (0, "the default"),
+        },
+    };
+    let (count, count_from) = match c.shard_count {
+        Some(n) => (n, "--shard-count"),
+        None => match env_usize("SLURM_ARRAY_TASK_COUNT")? {
+            Some(n) => (n, "SLURM_ARRAY_TASK_COUNT"),
+            None => (1, "the default"),
+        },
+    };
+    if count == 0 {
+        return Err(crate::Error::Usage(format!("{count_from} is 0; the task count must be at least 1")).into());
+    }
+    if index >= count {
+        let hint = if count_from == "SLURM_ARRAY_TASK_COUNT" {
+            " (a retried single array element such as `sbatch --array=17` sees a task count of 1: pass the whole job's count with --shard-count, as docs/scaling.md does)"
+        } else if count_from == "the default" {
+            " (pass the number of tasks with --shard-count)"
+        } else {
+            ""
+        };
+        return Err(crate::Error::Usage(format!(
+            "task index {index} (from {index_from}) must be below the task count {count} (from {count_from}){hint}"
+        ))
+        .into());
+    }
+    Ok((index, count))
+}
+
+fn run_plan(table: toml::Table, origin: &crate::config::Origin, out: Option<&PathBuf>, c: &RunCommon) -> anyhow::Result<()> {
+    let mut plan = crate::config::plan_from(table, origin)?;
+    if let Some(o) = out {
+        plan.set_out_dir(o);
+    }
+    let (task_index, task_count) = task_split(c)?;
+    let opts = RunOptions { task_index, task_count, progress: c.progress };
+    let o = crate::graph::run(&plan, &opts)?;
+    let r = &o.report;
+    eprintln!(
+        "{} inputs done ({} skipped as already in the manifest), {} frames, {} windows, {} samples in {:.1} s: {:.1} frames/s, {:.1} sub-frames/s blurred -> {}",
+        r.inputs_done,
+        r.inputs_skipped.len(),
+        r.frames,
+        r.windows,
+        r.samples,
+        r.seconds,
+        r.frames_per_s,
+        r.subframes_per_s,
+        o.out_dir.display()
+    );
+    if !r.inputs_failed.is_empty() {
+        for f in &r.inputs_failed {
+            eprintln!("failed: {}", f.error);
+        }
+        return Err(crate::Error::InputsFailed(r.inputs_failed.len()).into());
+    }
+    Ok(())
+}
+
+/// Checks a TOML file of any kind `pipeline` reads: a training file (`[model]`), an optics
+/// file (`[optics]`/`[camera]` only) or a pipeline; says what it is.
+pub fn describe(table: toml::Table, origin: &crate::config::Origin) -> crate::Result<String> {
+    let origin_name = origin.name.as_str();
+    #[cfg(all(feature = "train", feature = "ffmpeg"))]
+    if table.contains_key("eval") {
+        let f = crate::commands::eval::EvalFile::from_table(table, origin_name)?;
+        return Ok(format!("eval file: N {:?}, sigma {:?}, camera {}", f.eval.windows, f.eval.sigmas, f.camera.kind.name()));
+    }
+    #[cfg(feature = "train")]
+    if table.contains_key("deblur") {
+        let f = crate::commands::deblur::DeblurFile::from_table(table, origin_name)?;
+        return Ok(format!("deblur file: tiles {} px, overlap {}", f.deblur.tile, f.deblur.overlap));
+    }
+    #[cfg(feature = "train")]
+    if table.contains_key("model") {
+        let (cfg, mut errs) = crate::config::deserialize_all::<crate::train::TrainConfig>(&table);
+        if let Some(c) = &cfg {
+            errs.extend(c.validate());
+        }
+        match cfg {
+            Some(cfg) if errs.is_empty() => return Ok(format!("training file: {}, {} steps", cfg.model.name(), cfg.optim.steps)),
+            _ => return Err(origin.errors(errs)),
+        }
+    }
+    if !table.contains_key("sources") && (table.contains_key("optics") || table.contains_key("camera")) {
+        let f: OpticsFile = toml::Value::Table(table)
+            .try_into()
+            .map_err(|e: toml::de::Error| crate::Error::ConfigText(format!("{origin_name}: {}", e.to_string().trim())))?;
+        let mut errs = f.optics.validate("optics");
+        if let Some(c) = &f.camera {
+            errs.extend(c.validate("camera"));
+        }
+        if !errs.is_empty() {
+            return Err(crate::Error::Config(errs));
+        }
+        return Ok(format!("optics file: Airy radius {:.2} px", f.optics.airy_radius_ref_px()));
+    }
+    let plan = crate::config::plan_from(table, origin)?;
+    Ok(plan.stages.iter().map(|(n, _)| n.as_str()).collect::<Vec<_>>().join(" -> "))
+}
+
+/// Runs `pipeline generate`: the embedded pipelines/generate.toml (or `--config`) over the
+/// videos given.
+///
+/// # Errors
+/// As [`crate::graph::run`]; failed inputs as [`crate::Error::InputsFailed`].
+pub fn generate(a: GenerateArgs) -> anyhow::Result<()> {
+    let (mut table, origin) = super::load_or_embedded(a.config.as_deref(), GENERATE_TOML, "pipelines/generate.toml", &[])?;
+    if !a.videos.is_empty() {
+        let sources =
+            table.get_mut("sources").and_then(|s| s.as_table_mut()).ok_or_else(|| anyhow::anyhow!("the pipeline has no [sources]"))?;
+        for (_, src) in sources.iter_mut() {
+            if let Some(t) = src.as_table_mut() {
+                t.insert("paths".into(), toml::Value::Array(a.videos.iter().map(|v| toml::Value::String(v.clone())).collect()));
+            }
+        }
+    }
+    crate::config::apply_sets(&mut table, &a.common.sets).map_err(crate::Error::ConfigText)?;
+    let text = a.config.is_none().then_some(GENERATE_TOML);
+    run_plan(table, &crate::config::Origin::new(&origin, text, &a.common.sets), a.out.as_ref(), &a.common)
+}
+
+/// Runs `pipeline run`: a pipeline file.
+///
+/// # Errors
+/// As [`generate`].
+pub fn run(a: RunArgs) -> anyhow::Result<()> {
+    let table = crate::config::load(&a.pipeline, &a.common.sets)?;
+    let origin = crate::config::Origin::new(&a.pipeline.display().to_string(), None, &a.common.sets);
+    run_plan(table, &origin, a.out.as_ref(), &a.common)
+}
+
+/// Runs `pipeline validate`.
+///
+/// # Errors
+/// Whatever the command reports (exit codes in `main.rs`).
+pub fn command(a: ValidateArgs) -> anyhow::Result<()> {
+    let ValidateArgs { pipelines, sets } = a;
+    let mut bad = 0;
+    for p in &pipelines {
+        let origin = crate::config::Origin::new(&p.display().to_string(), None, &sets);
+        match crate::config::load(p, &sets).and_then(|t| describe(t, &origin)) {
+            Ok(what) => println!("{}: ok ({what})", p.display()),
+            Err(e) => {
+                bad += 1;
+                for line in e.to_string().lines() {
+                    println!("{}: {line}", p.display());
+                }
+            }
+        }
+    }
+    if bad > 0 {
+        return Err(crate::Error::Config(vec![crate::optics::ConfigError {
+            key: "validate".into(),
+            message: format!("{bad} of {} pipeline files have errors", pipelines.len()),
+        }])
+        .into());
+    }
+    Ok(())
+}

@@ -1,0 +1,65 @@
+//! The commands: each file owns its clap arguments, its embedded default settings file, what it
+//! runs and the summary it prints. `cli.rs` only parses and dispatches.
+
+pub mod bench;
+#[cfg(feature = "train")]
+pub mod deblur;
+#[cfg(all(feature = "train", feature = "ffmpeg"))]
+pub mod eval;
+#[cfg(feature = "train")]
+pub mod figure;
+pub mod generate;
+pub mod psf;
+#[cfg(feature = "train")]
+pub mod train;
+
+use crate::graph::ProgressMode;
+use clap::Args;
+use std::path::PathBuf;
+
+/// `--config`, `--set` and `--progress` of the commands that read one settings file
+/// (`deblur`: pipelines/deblur.toml, `eval`: pipelines/eval.toml).
+#[derive(Args, Debug)]
+pub struct ConfigArgs {
+    /// The command's settings file; default: its pipelines/*.toml, embedded in the binary.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
+    /// Override one key of that file: --set deblur.tile=512, --set eval.crop=256 (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub sets: Vec<String>,
+    #[arg(long, value_enum, default_value_t = ProgressMode::Auto)]
+    pub progress: ProgressMode,
+}
+
+impl ConfigArgs {
+    /// The file, or the embedded default `name`, with the overrides applied; and its name.
+    pub fn load(&self, embedded: &str, name: &str) -> crate::Result<(toml::Table, String)> {
+        load_or_embedded(self.config.as_deref(), embedded, name, &self.sets)
+    }
+
+    pub fn bar(&self) -> bool {
+        bars(self.progress)
+    }
+}
+
+/// Progress bars: on a terminal, unless told otherwise.
+pub fn bars(progress: ProgressMode) -> bool {
+    progress == ProgressMode::Auto && std::io::IsTerminal::is_terminal(&std::io::stderr())
+}
+
+/// The file given with `--config`, or the embedded default named `name`, with `--set` applied;
+/// and the name to put in error messages.
+pub fn load_or_embedded(
+    config: Option<&std::path::Path>,
+    embedded: &str,
+    name: &str,
+    sets: &[String],
+) -> crate::Result<(toml::Table, String)> {
+    match config {
+        Some(p) => Ok((crate::config::load(p, sets)?, p.display().to_string())),
+        None => {
+            let origin = format!("{name} (embedded)");
+            Ok((crate::config::parse(embedded, &origin, sets)?, origin))
+        }
+    }
+}

@@ -1,0 +1,51 @@
+//! `pipeline train`: the command line of [`crate::train`].
+
+use crate::graph::ProgressMode;
+use clap::Args;
+use std::path::PathBuf;
+
+#[derive(Args, Debug)]
+pub struct TrainArgs {
+    /// Training file (TOML): [model], [data], [optim], [validate], [output].
+    #[arg(long)]
+    pub config: PathBuf,
+    /// Override one key: --set optim.steps=500 (repeatable).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    pub sets: Vec<String>,
+    /// Continue from output.dir/latest.json with the same data order.
+    #[arg(long)]
+    pub resume: bool,
+    /// Progress display on stderr.
+    #[arg(long, value_enum, default_value_t = ProgressMode::Auto)]
+    pub progress: ProgressMode,
+}
+
+/// Runs `pipeline train`.
+///
+/// # Errors
+/// Whatever the command reports (exit codes in `main.rs`).
+pub fn command(a: TrainArgs) -> anyhow::Result<()> {
+    let TrainArgs { config, sets, resume, progress } = a;
+    let table = crate::config::load(&config, &sets)?;
+    let origin = crate::config::Origin::new(&config.display().to_string(), None, &sets);
+    let cfg = match crate::config::deserialize_all::<crate::train::TrainConfig>(&table) {
+        (Some(cfg), errs) if errs.is_empty() => cfg,
+        (_, errs) => return Err(origin.errors(errs).into()),
+    };
+    let bar = super::bars(progress);
+    let r = crate::train::train(&cfg, &crate::train::TrainOptions { resume, progress: bar, stop_after: None })?;
+    let last = r.validation.last();
+    eprintln!(
+        "{}: {} steps in {:.0} s ({:.1} patches/s){} -> {}",
+        r.arch,
+        r.steps,
+        r.seconds,
+        r.patches_per_s,
+        last.map_or(String::new(), |v| format!(
+            ", validation PSNR {:.2} dB / SSIM {:.4} (blurred input {:.2} / {:.4})",
+            v.model.psnr_rgb, v.model.ssim_rgb, v.input.psnr_rgb, v.input.ssim_rgb
+        )),
+        cfg.output.dir
+    );
+    Ok(())
+}

@@ -1,0 +1,121 @@
+//! Running a trained network on frames: whole or in square tiles with blended seams, on the
+//! fast CPU path, plus the shipped default model. Used by `deblur`, `eval`, `figure` and the
+//! benchmarks.
+
+use crate::model::fast::{FastNet, T4};
+use crate::Result;
+use burn::tensor::Device;
+use std::path::Path;
+
+/// The model `deblur` uses without `--model`: the shipped U-Net 16 trained on the coded camera
+/// (the best coded model on the held-out test clips, docs/eval.md; 3.7 MB).
+pub const DEFAULT_MODEL: &[u8] = include_bytes!("../../models/unet16-coded/model.safetensors");
+
+/// Tiling of a frame: square tiles of `tile` pixels overlapping by `overlap`.
+#[derive(Debug, Clone, Copy)]
+pub struct Tiling {
+    pub tile: usize,
+    pub overlap: usize,
+}
+
+impl Default for Tiling {
+    /// A 720p frame in one pass (1280); an overlap of 64 px (the U-Net sees about 100 px around a
+    /// pixel).
+    fn default() -> Self {
+        Tiling { tile: 1280, overlap: 64 }
+    }
+}
+
+/// Tiles of at most `t` covering `0..n`, overlapping by at least `o`: as few as that allows,
+/// all of one size, spread evenly (so no tile is mostly overlap). Returns the size and the
+/// start positions.
+fn tiles_1d(n: usize, t: usize, o: usize) -> (usize, Vec<usize>) {
+    if n <= t {
+        return (n, vec![0]);
+    }
+    let count = (n - o).div_ceil(t - o);
+    let size = (n + (count - 1) * o).div_ceil(count);
+    let step = size - o;
+    (size, (0..count).map(|i| (i * step).min(n - size)).collect())
+}
+
+/// Blending weight of position `i` in a tile of length `len` placed at `start` in `0..n`: a
+/// linear ramp over the overlap, except at the frame's own borders.
+fn ramp(i: usize, len: usize, start: usize, n: usize, o: usize) -> f32 {
+    let mut w = 1.0f32;
+    if start > 0 && i < o {
+        w = w.min((i as f32 + 0.5) / o as f32);
+    }
+    if start + len < n && i + o >= len {
+        w = w.min((len - i) as f32 / o as f32 - 0.5 / o as f32);
+    }
+    w.max(1e-3)
+}
+
+/// Runs `net` on one interleaved 8-bit RGB frame, whole or in blended tiles. Each tile's
+/// forward pass runs on all cores; tiles only bound the memory, and are blended in a fixed
+/// order, so the result does not depend on the number of threads.
+pub fn run_frame(net: &FastNet, rgb: &[u8], w: usize, h: usize, tiling: Tiling) -> Vec<u8> {
+    let (t, o) = (tiling.tile.max(16), tiling.overlap.min(tiling.tile / 2));
+    let ((tw, xs), (th, ys)) = (tiles_1d(w, t, o), tiles_1d(h, t, o));
+    let tiles: Vec<(usize, usize)> = ys.iter().flat_map(|&y0| xs.iter().map(move |&x0| (x0, y0))).collect();
+    let forward = |&(x0, y0): &(usize, usize)| -> Vec<f32> {
+        let mut v = vec![0.0f32; 3 * tw * th];
+        for y in 0..th {
+            for x in 0..tw {
+                for c in 0..3 {
+                    v[c * tw * th + y * tw + x] = rgb[((y0 + y) * w + x0 + x) * 3 + c] as f32 / 255.0;
+                }
+            }
+        }
+        net.forward(&T4::new(1, 3, th, tw, v)).d
+    };
+    let outs: Vec<Vec<f32>> = tiles.iter().map(forward).collect();
+    let mut acc = vec![0.0f32; w * h * 3];
+    let mut wsum = vec![0.0f32; w * h];
+    for (&(x0, y0), out) in tiles.iter().zip(&outs) {
+        for y in 0..th {
+            let wy = ramp(y, th, y0, h, o);
+            for x in 0..tw {
+                let wgt = wy * ramp(x, tw, x0, w, o);
+                let p = (y0 + y) * w + x0 + x;
+                wsum[p] += wgt;
+                for c in 0..3 {
+                    acc[p * 3 + c] += wgt * out[c * tw * th + y * tw + x];
+                }
+            }
+        }
+    }
+    acc.iter().enumerate().map(|(i, v)| ((v / wsum[i / 3]).clamp(0.0, 1.0) * 255.0).round() as u8).collect()
+}
+
+/// Loads `--model`, or the embedded default.
+///
+/// # Errors
+/// As [`crate::train::load_model`].
+pub fn load(model: Option<&Path>) -> Result<(FastNet, String)> {
+    let device = Device::flex();
+    let (net, name) = match model {
+        Some(p) => crate::train::load_model(p, &device).map(|(n, a)| (n, format!("{} ({})", p.display(), a.name())))?,
+        None => crate::train::load_model_bytes(DEFAULT_MODEL, "embedded models/unet16-coded", &device)
+            .map(|(n, a)| (n, format!("models/unet16-coded ({})", a.name())))?,
+    };
+    Ok((FastNet::from_net(&net), name))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn tiles_cover_the_frame_with_the_overlap() {
+        assert_eq!(tiles_1d(100, 128, 16), (100, vec![0]));
+        for (n, t, o) in [(300, 128, 32), (720, 256, 32), (1280, 384, 32), (1081, 200, 17)] {
+            let (size, s) = tiles_1d(n, t, o);
+            assert!(size <= t && s[0] == 0 && s.last().unwrap() + size == n, "{n} {t} {o}: {size} {s:?}");
+            assert!(s.windows(2).all(|p| p[0] + size >= p[1] + o), "{n} {t} {o}: overlap below {o}: {s:?}");
+        }
+        // Evenly spread: 720 in tiles of at most 256 needs 4, each 204 (not 3 of 256 and a sliver).
+        assert_eq!(tiles_1d(720, 256, 32), (204, vec![0, 172, 344, 516]));
+    }
+}
