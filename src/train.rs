@@ -1,24 +1,26 @@
 //! `pipeline train`: the paper's U-Net or shallow model on (lq, gt) patch pairs from WebDataset
 //! shards, with Huber loss and Adam, validation PSNR/SSIM on inputs held apart by source video,
-//! safetensors checkpoints and exact resume.
+//! checkpoints ([`crate::model::checkpoint`]) and exact resume.
 //!
 //! Determinism: the shard order, the shuffle buffer and the augmentations are functions of the
 //! seed and the step, so `--resume` continues with the data order the uninterrupted run would
 //! have had (it replays the sample stream up to the checkpoint).
 
-use crate::io::{png as png_io, tar, write_atomic};
+pub use crate::io::wds::{read_shard, Pair};
+use crate::io::write_atomic;
 use crate::metrics;
+pub use crate::model::checkpoint::{load_model, load_model_bytes};
+use crate::model::checkpoint::{read_meta, save_checkpoint, IdSetter, Latest};
 use crate::model::fast::{self, Adam, FastNet, T4};
 use crate::model::{Arch, Net};
 use crate::rng::{hash, hash_str, unit, Rng};
 use crate::{Error, Result};
-use burn::module::{Module, ModuleMapper, ModuleVisitor, Param, ParamId};
+use burn::module::Module;
 use burn::nn::loss::{HuberLossConfig, Reduction};
 use burn::optim::{AdamConfig, GradientsParams};
-use burn::store::{ModuleSnapshot, SafetensorsStore};
 use burn::tensor::{Device, Tensor};
 use serde::{Deserialize, Serialize};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -217,73 +219,6 @@ impl TrainConfig {
     }
 }
 
-/// One (lq, gt) pair read from a shard: 8-bit interleaved RGB.
-#[derive(Debug, Clone)]
-pub struct Pair {
-    pub key: String,
-    /// The source input it was cut from: a hash of the input's key (`input` in the sample's
-    /// JSON), or the run-local `input_index` of shards written before 0.2. The validation split
-    /// is by this, never by patch.
-    pub source: u64,
-    pub w: usize,
-    pub h: usize,
-    pub lq: Vec<u8>,
-    pub gt: Vec<u8>,
-}
-
-/// Reads every sample of one shard, checking each: a corrupt PNG, a missing member or a
-/// patch of another size is an error that names the shard and the key.
-///
-/// # Errors
-/// See above.
-pub fn read_shard(path: &Path, want: Option<(usize, usize)>) -> Result<Vec<Pair>> {
-    let f = std::fs::File::open(path).map_err(|e| Error::Io { path: path.to_path_buf(), cause: e })?;
-    let members = tar::read_all(std::io::BufReader::new(f)).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
-    let mut out: Vec<Pair> = Vec::new();
-    let mut cur: Option<(String, Option<Vec<u8>>, Option<Vec<u8>>, Option<u64>)> = None;
-    let bad = |key: &str, what: String| Error::Invalid(format!("{}: sample {key}: {what}", path.display()));
-    let finish = |c: (String, Option<Vec<u8>>, Option<Vec<u8>>, Option<u64>), out: &mut Vec<Pair>| -> Result<()> {
-        let (key, lq, gt, idx) = c;
-        let lq = lq.ok_or_else(|| bad(&key, "has no lq.png".into()))?;
-        let gt = gt.ok_or_else(|| bad(&key, "has no gt.png".into()))?;
-        let (w, h, lq) = png_io::read_rgb8(&lq).map_err(|e| bad(&key, format!("lq.png is not a readable PNG ({e})")))?;
-        let (gw, gh, gt) = png_io::read_rgb8(&gt).map_err(|e| bad(&key, format!("gt.png is not a readable PNG ({e})")))?;
-        if (w, h) != (gw, gh) {
-            return Err(bad(&key, format!("lq is {w}x{h} but gt is {gw}x{gh}")));
-        }
-        if let Some((ww, wh)) = want {
-            if (w, h) != (ww, wh) {
-                return Err(bad(&key, format!("patch is {w}x{h}, expected {ww}x{wh} like the others")));
-            }
-        }
-        out.push(Pair { key, source: idx.unwrap_or(0), w, h, lq, gt });
-        Ok(())
-    };
-    for (name, bytes) in members {
-        let (key, ext) = name.split_once('.').unwrap_or((name.as_str(), ""));
-        if cur.as_ref().is_none_or(|c| c.0 != key) {
-            if let Some(c) = cur.take() {
-                finish(c, &mut out)?;
-            }
-            cur = Some((key.to_string(), None, None, None));
-        }
-        let c = cur.as_mut().expect("set above");
-        match ext {
-            "lq.png" => c.1 = Some(bytes),
-            "gt.png" => c.2 = Some(bytes),
-            "json" => {
-                let v: serde_json::Value = serde_json::from_slice(&bytes).map_err(|e| bad(key, format!("json is not valid ({e})")))?;
-                c.3 = v["input"].as_str().map(hash_str).or(v["input_index"].as_u64());
-            }
-            _ => {}
-        }
-    }
-    if let Some(c) = cur.take() {
-        finish(c, &mut out)?;
-    }
-    Ok(out)
-}
-
 /// Train/validation split by source input (never by patch).
 pub fn is_validation(seed: u64, source: u64, fraction: f64) -> bool {
     unit(hash(&[seed, source, hash_str("val-split")])) < fraction
@@ -453,14 +388,6 @@ fn evaluate_with(val: &[Pair], forward: impl Fn(&[&[u8]], usize, usize) -> Vec<V
     (q(sums[0]), q(sums[1]))
 }
 
-/// What `latest.json` in the output folder says.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct Latest {
-    pub step: usize,
-    pub model: String,
-    pub optimizer: String,
-}
-
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct LossPoint {
     pub step: usize,
@@ -492,133 +419,6 @@ pub struct TrainReport {
     pub loss: Vec<LossPoint>,
     pub validation: Vec<ValPoint>,
     pub config: TrainConfig,
-}
-
-/// Collects the ids of the trainable parameters in traversal order.
-struct IdCollector(Vec<u64>);
-
-impl ModuleVisitor for IdCollector {
-    fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
-        self.0.push(p.id.val());
-    }
-}
-
-/// Gives the parameters, in traversal order, the ids they had when the checkpoint was written:
-/// the optimizer state is keyed by parameter id, and a model loaded from safetensors gets
-/// fresh ids.
-struct IdSetter {
-    ids: Vec<u64>,
-    next: usize,
-}
-
-impl ModuleMapper for IdSetter {
-    fn map_float<const D: usize>(&mut self, mut p: Param<Tensor<D>>) -> Param<Tensor<D>> {
-        if let Some(&id) = self.ids.get(self.next) {
-            p.id = ParamId::from(id);
-        }
-        self.next += 1;
-        p
-    }
-}
-
-/// Saves the model (safetensors, config and step in the metadata) and the optimizer state.
-fn save_checkpoint(dir: &Path, model: &Net, optim_bytes: Vec<u8>, cfg: &TrainConfig, step: usize) -> Result<Latest> {
-    let name = format!("model-{step:07}.safetensors");
-    let path = dir.join(&name);
-    let mut store = SafetensorsStore::from_file(&path)
-        .metadata("pipeline_version", env!("CARGO_PKG_VERSION"))
-        .metadata("arch", serde_json::to_string(&cfg.model).expect("json"))
-        .metadata("step", step.to_string())
-        .metadata("seed", cfg.seed.to_string())
-        .metadata("input", "[n, 3, h, w] encoded sRGB in [0, 1]; output = input + residual")
-        .metadata("param_ids", {
-            let mut c = IdCollector(Vec::new());
-            model.visit(&mut c);
-            serde_json::to_string(&c.0).expect("json")
-        })
-        .overwrite(true);
-    model.save_into(&mut store).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
-    let oname = format!("optim-{step:07}.bin");
-    write_atomic(&dir.join(&oname), |w| w.write_all(&optim_bytes))?;
-    let latest = Latest { step, model: name, optimizer: oname };
-    let bytes = serde_json::to_vec_pretty(&latest).expect("json");
-    write_atomic(&dir.join("latest.json"), |w| w.write_all(&bytes))?;
-    Ok(latest)
-}
-
-/// Loads a model file written by `pipeline train` (or a model folder holding `model.safetensors`),
-/// checking its architecture and that every weight is finite.
-///
-/// # Errors
-/// A missing or truncated file, or weights of another architecture (named).
-pub fn load_model(path: &Path, device: &Device) -> Result<(Net, Arch)> {
-    // A model folder (as shipped in models/) stands for its model.safetensors.
-    let file;
-    let path = if path.is_dir() {
-        file = path.join("model.safetensors");
-        file.as_path()
-    } else {
-        path
-    };
-    let bytes = std::fs::read(path).map_err(|e| Error::Io { path: path.to_path_buf(), cause: e })?;
-    load_model_bytes(&bytes, &path.display().to_string(), device)
-}
-
-/// As [`load_model`], from the bytes of a model file; `name` names it in errors.
-///
-/// # Errors
-/// As [`load_model`].
-pub fn load_model_bytes(bytes: &[u8], name: &str, device: &Device) -> Result<(Net, Arch)> {
-    let bytes = bytes.to_vec();
-    let path = Path::new(name);
-    let arch = read_arch(&bytes).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
-    let mut net = Net::new(arch, device);
-    let mut store = SafetensorsStore::from_bytes(Some(bytes));
-    let r = net.load_from(&mut store).map_err(|e| Error::Invalid(format!("{}: not loadable as {} ({e})", path.display(), arch.name())))?;
-    if !r.errors.is_empty() || !r.missing.is_empty() {
-        return Err(Error::Invalid(format!(
-            "{}: weights do not fit {} ({} missing, {} errors)",
-            path.display(),
-            arch.name(),
-            r.missing.len(),
-            r.errors.len()
-        )));
-    }
-    // A model with NaN or infinite weights would write black frames: refuse it by name.
-    struct Finite(usize);
-    impl ModuleVisitor for Finite {
-        fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
-            self.0 += p.val().into_data().try_to_vec::<f32>().map_or(0, |v| v.iter().filter(|x| !x.is_finite()).count());
-        }
-    }
-    let mut bad = Finite(0);
-    net.visit(&mut bad);
-    if bad.0 > 0 {
-        return Err(Error::Invalid(format!(
-            "{}: {} weights are not finite (NaN or infinite); the model cannot be used",
-            path.display(),
-            bad.0
-        )));
-    }
-    Ok((net, arch))
-}
-
-/// The `__metadata__` of a safetensors header.
-fn read_meta(bytes: &[u8]) -> std::result::Result<serde_json::Value, String> {
-    if bytes.len() < 8 {
-        return Err("truncated: no safetensors header".into());
-    }
-    let n = u64::from_le_bytes(bytes[..8].try_into().expect("8 bytes")) as usize;
-    let header = bytes.get(8..8 + n).ok_or("truncated safetensors header")?;
-    let v: serde_json::Value = serde_json::from_slice(header).map_err(|e| format!("bad safetensors header ({e})"))?;
-    Ok(v["__metadata__"].clone())
-}
-
-/// The `arch` entry of a safetensors header's metadata.
-fn read_arch(bytes: &[u8]) -> std::result::Result<Arch, String> {
-    let meta = read_meta(bytes)?;
-    let arch = meta["arch"].as_str().ok_or("no `arch` in the metadata: not a pipeline model")?;
-    serde_json::from_str(arch).map_err(|e| format!("unknown arch {arch:?} ({e})"))
 }
 
 /// Options of one `pipeline train` call.

@@ -97,6 +97,7 @@ pub struct GenerateBench {
     pub rows: Vec<GenerateRow>,
 }
 
+#[cfg(feature = "ffmpeg")]
 fn ffmpeg_cli(args: &[&str]) -> crate::Result<()> {
     let st = std::process::Command::new("ffmpeg")
         .args(["-v", "error", "-y"])
@@ -109,6 +110,7 @@ fn ffmpeg_cli(args: &[&str]) -> crate::Result<()> {
     Ok(())
 }
 
+#[cfg(feature = "ffmpeg")]
 /// Makes a `w x h`, `fps` H.264 clip of `seconds` with FFmpeg's test pattern (fine detail,
 /// moving objects, scrolling gradient).
 fn make_clip(path: &std::path::Path, w: usize, h: usize, fps: u32, seconds: f64) -> crate::Result<()> {
@@ -141,12 +143,14 @@ fn own_decode_fps(path: &std::path::Path) -> crate::Result<(f64, u64)> {
     Ok((n as f64 / t.elapsed().as_secs_f64(), n))
 }
 
+#[cfg(feature = "ffmpeg")]
 fn ffmpeg_decode_fps(path: &std::path::Path, frames: u64) -> crate::Result<f64> {
     let t = Instant::now();
     ffmpeg_cli(&["-threads", "0", "-i", path.to_str().unwrap_or_default(), "-f", "null", "-"])?;
     Ok(frames as f64 / t.elapsed().as_secs_f64())
 }
 
+#[cfg(feature = "ffmpeg")]
 fn bench_plan(mode: &str, clip: &std::path::Path, out: &std::path::Path) -> crate::Result<crate::config::Plan> {
     let mut sets = vec![
         format!("sources.video.paths=[{:?}]", clip.display().to_string()),
@@ -545,6 +549,7 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 7, value_parser = clap::value_parser!(u16).range(1..=1000))]
         repeats: u16,
     },
+    #[cfg(feature = "ffmpeg")]
     /// Generation speed (full frame and patch mode) beside FFmpeg's decode-only speed of the
     /// same clip, which it makes with the ffmpeg CLI; peak memory on a clip twice as long.
     Generate {
@@ -605,6 +610,7 @@ pub fn command(c: BenchCommand) -> anyhow::Result<()> {
             println!("{}", serde_json::to_string_pretty(&r)?);
             Ok(())
         }
+        #[cfg(feature = "ffmpeg")]
         BenchCommand::Generate { width, height, fps, seconds, repeats } => {
             let r = generate(width, height, fps, seconds, repeats as usize)?;
             println!("{}", serde_json::to_string_pretty(&r)?);

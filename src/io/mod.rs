@@ -8,5 +8,6 @@ pub mod png;
 pub mod tar;
 #[cfg(feature = "ffmpeg")]
 pub mod video;
+pub mod wds;
 
 pub use atomic::{host, remove_stale, temp_name, temp_path, write_atomic};

@@ -12,6 +12,7 @@
 //! Images are `[batch, 3, h, w]`, encoded sRGB values in [0, 1]. Any size works: the U-Net pads
 //! to a multiple of 16 (edge replication) and crops back.
 
+pub mod checkpoint;
 pub mod fast;
 pub mod infer;
 

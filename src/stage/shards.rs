@@ -330,10 +330,10 @@ struct OpenShard {
 }
 
 impl OpenShard {
-    /// Appends through the checksum.
-    fn append(&mut self, name: &str, data: &[u8]) -> std::io::Result<()> {
+    /// Appends one sample through the checksum.
+    fn append(&mut self, key: &str, lq: &[u8], gt: &[u8], json: &[u8]) -> std::io::Result<()> {
         let mut hw = HashWriter { inner: &mut self.w, crc: &mut self.crc, bytes: 0 };
-        tar::append(&mut hw, name, data)?;
+        crate::io::wds::append_sample(&mut hw, key, lq, gt, json)?;
         self.bytes += hw.bytes;
         Ok(())
     }
@@ -410,11 +410,7 @@ impl Shards {
         }
         let o = cur.open.as_mut().expect("opened");
         let key = sample_key(s, p);
-        let res = (|| {
-            o.append(&format!("{key}.lq.png"), &png_bytes(&p.lq, p.w, p.h, s.curve))?;
-            o.append(&format!("{key}.gt.png"), &png_bytes(&p.gt, p.w, p.h, s.curve))?;
-            o.append(&format!("{key}.json"), &meta_json(s, p))
-        })();
+        let res = o.append(&key, &png_bytes(&p.lq, p.w, p.h, s.curve), &png_bytes(&p.gt, p.w, p.h, s.curve), &meta_json(s, p));
         res.map_err(|e| crate::Error::Io { path: o.tmp.clone(), cause: e })?;
         o.samples += 1;
         cur.samples += 1;

@@ -1,0 +1,147 @@
+//! Checkpoints: a model as safetensors (architecture, config and step in the metadata) plus
+//! the optimizer state, `latest.json`, and loading a model file with its checks.
+
+use crate::io::write_atomic;
+use crate::model::{Arch, Net};
+use crate::train::TrainConfig;
+use crate::{Error, Result};
+use burn::module::{Module, ModuleMapper, ModuleVisitor, Param, ParamId};
+use burn::store::{ModuleSnapshot, SafetensorsStore};
+use burn::tensor::{Device, Tensor};
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// What `latest.json` in the output folder says.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Latest {
+    pub step: usize,
+    pub model: String,
+    pub optimizer: String,
+}
+
+/// Collects the ids of the trainable parameters in traversal order.
+pub(crate) struct IdCollector(Vec<u64>);
+
+impl ModuleVisitor for IdCollector {
+    fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
+        self.0.push(p.id.val());
+    }
+}
+
+/// Gives the parameters, in traversal order, the ids they had when the checkpoint was written:
+/// the optimizer state is keyed by parameter id, and a model loaded from safetensors gets
+/// fresh ids.
+pub(crate) struct IdSetter {
+    pub ids: Vec<u64>,
+    pub next: usize,
+}
+
+impl ModuleMapper for IdSetter {
+    fn map_float<const D: usize>(&mut self, mut p: Param<Tensor<D>>) -> Param<Tensor<D>> {
+        if let Some(&id) = self.ids.get(self.next) {
+            p.id = ParamId::from(id);
+        }
+        self.next += 1;
+        p
+    }
+}
+
+/// Saves the model (safetensors, config and step in the metadata) and the optimizer state.
+pub fn save_checkpoint(dir: &Path, model: &Net, optim_bytes: Vec<u8>, cfg: &TrainConfig, step: usize) -> Result<Latest> {
+    let name = format!("model-{step:07}.safetensors");
+    let path = dir.join(&name);
+    let mut store = SafetensorsStore::from_file(&path)
+        .metadata("pipeline_version", env!("CARGO_PKG_VERSION"))
+        .metadata("arch", serde_json::to_string(&cfg.model).expect("json"))
+        .metadata("step", step.to_string())
+        .metadata("seed", cfg.seed.to_string())
+        .metadata("input", "[n, 3, h, w] encoded sRGB in [0, 1]; output = input + residual")
+        .metadata("param_ids", {
+            let mut c = IdCollector(Vec::new());
+            model.visit(&mut c);
+            serde_json::to_string(&c.0).expect("json")
+        })
+        .overwrite(true);
+    model.save_into(&mut store).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+    let oname = format!("optim-{step:07}.bin");
+    write_atomic(&dir.join(&oname), |w| w.write_all(&optim_bytes))?;
+    let latest = Latest { step, model: name, optimizer: oname };
+    let bytes = serde_json::to_vec_pretty(&latest).expect("json");
+    write_atomic(&dir.join("latest.json"), |w| w.write_all(&bytes))?;
+    Ok(latest)
+}
+
+/// Loads a model file written by `pipeline train` (or a model folder holding `model.safetensors`),
+/// checking its architecture and that every weight is finite.
+///
+/// # Errors
+/// A missing or truncated file, or weights of another architecture (named).
+pub fn load_model(path: &Path, device: &Device) -> Result<(Net, Arch)> {
+    // A model folder (as shipped in models/) stands for its model.safetensors.
+    let file;
+    let path = if path.is_dir() {
+        file = path.join("model.safetensors");
+        file.as_path()
+    } else {
+        path
+    };
+    let bytes = std::fs::read(path).map_err(|e| Error::Io { path: path.to_path_buf(), cause: e })?;
+    load_model_bytes(&bytes, &path.display().to_string(), device)
+}
+
+/// As [`load_model`], from the bytes of a model file; `name` names it in errors.
+///
+/// # Errors
+/// As [`load_model`].
+pub fn load_model_bytes(bytes: &[u8], name: &str, device: &Device) -> Result<(Net, Arch)> {
+    let bytes = bytes.to_vec();
+    let path = Path::new(name);
+    let arch = read_arch(&bytes).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+    let mut net = Net::new(arch, device);
+    let mut store = SafetensorsStore::from_bytes(Some(bytes));
+    let r = net.load_from(&mut store).map_err(|e| Error::Invalid(format!("{}: not loadable as {} ({e})", path.display(), arch.name())))?;
+    if !r.errors.is_empty() || !r.missing.is_empty() {
+        return Err(Error::Invalid(format!(
+            "{}: weights do not fit {} ({} missing, {} errors)",
+            path.display(),
+            arch.name(),
+            r.missing.len(),
+            r.errors.len()
+        )));
+    }
+    // A model with NaN or infinite weights would write black frames: refuse it by name.
+    struct Finite(usize);
+    impl ModuleVisitor for Finite {
+        fn visit_float<const D: usize>(&mut self, p: &Param<Tensor<D>>) {
+            self.0 += p.val().into_data().try_to_vec::<f32>().map_or(0, |v| v.iter().filter(|x| !x.is_finite()).count());
+        }
+    }
+    let mut bad = Finite(0);
+    net.visit(&mut bad);
+    if bad.0 > 0 {
+        return Err(Error::Invalid(format!(
+            "{}: {} weights are not finite (NaN or infinite); the model cannot be used",
+            path.display(),
+            bad.0
+        )));
+    }
+    Ok((net, arch))
+}
+
+/// The `__metadata__` of a safetensors header.
+pub fn read_meta(bytes: &[u8]) -> std::result::Result<serde_json::Value, String> {
+    if bytes.len() < 8 {
+        return Err("truncated: no safetensors header".into());
+    }
+    let n = u64::from_le_bytes(bytes[..8].try_into().expect("8 bytes")) as usize;
+    let header = bytes.get(8..8 + n).ok_or("truncated safetensors header")?;
+    let v: serde_json::Value = serde_json::from_slice(header).map_err(|e| format!("bad safetensors header ({e})"))?;
+    Ok(v["__metadata__"].clone())
+}
+
+/// The `arch` entry of a safetensors header's metadata.
+pub fn read_arch(bytes: &[u8]) -> std::result::Result<Arch, String> {
+    let meta = read_meta(bytes)?;
+    let arch = meta["arch"].as_str().ok_or("no `arch` in the metadata: not a pipeline model")?;
+    serde_json::from_str(arch).map_err(|e| format!("unknown arch {arch:?} ({e})"))
+}
