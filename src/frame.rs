@@ -125,16 +125,6 @@ pub enum Img {
     Encoded8(Vec<u8>),
 }
 
-impl Img {
-    /// Interleaved 8-bit encoded RGB (linear light quantised through `curve`, without noise).
-    pub fn rgb8(&self, w: usize, h: usize, curve: Curve) -> Vec<u8> {
-        match self {
-            Img::Encoded8(v) => v.clone(),
-            Img::Linear(p) => crate::imaging::to_8bit(p, w, h, curve),
-        }
-    }
-}
-
 /// An (lq, gt) pair cut from a window at (x, y), `w x h` pixels.
 #[derive(Debug, Clone)]
 pub struct Pair {

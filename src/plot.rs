@@ -151,27 +151,3 @@ pub fn panel(canvas: &mut Canvas, (ox, oy, pw, ph): (usize, usize, usize, usize)
         canvas.text(left + 10 + i * 200, top + 4, s.name, s.color);
     }
 }
-
-/// `curves.png`: the training loss (log10) and the validation PSNR against steps.
-///
-/// # Errors
-/// The file cannot be written.
-#[cfg(feature = "train")]
-pub fn training_curves(path: &std::path::Path, r: &crate::train::TrainReport) -> crate::Result<()> {
-    let mut c = Canvas::new(900, 640, [0.12, 0.12, 0.14]);
-    let loss = Series {
-        name: "LOG10 HUBER LOSS",
-        points: r.loss.iter().map(|p| (p.step as f64, p.loss.max(1e-12).log10())).collect(),
-        color: [0.95, 0.6, 0.2],
-    };
-    panel(&mut c, (10, 10, 880, 300), &format!("LOG10 TRAINING LOSS ({})", r.arch.to_uppercase()), "STEP", &[loss]);
-    let model =
-        Series { name: "MODEL", points: r.validation.iter().map(|v| (v.step as f64, v.model.psnr_rgb)).collect(), color: [0.3, 0.8, 0.4] };
-    let input = Series {
-        name: "BLURRED INPUT",
-        points: r.validation.iter().map(|v| (v.step as f64, v.input.psnr_rgb)).collect(),
-        color: [0.6, 0.6, 0.9],
-    };
-    panel(&mut c, (10, 330, 880, 300), "VALIDATION PSNR RGB (DB)", "STEP", &[model, input]);
-    c.save(path)
-}

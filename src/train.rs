@@ -653,7 +653,7 @@ impl Trainer {
             self.vals.push(ValPoint { step: done, model: m, input: i });
         }
         if done % cfg.output.checkpoint_every == 0 || done == self.end {
-            save_checkpoint(&self.dir, &self.engine.net(), self.engine.optim_bytes()?, cfg, done)?;
+            save_checkpoint(&self.dir, &self.engine.net(), self.engine.optim_bytes()?, &cfg.model, cfg.seed, done)?;
             self.write_report()?;
         }
         let rate = ((done - self.start) * batch.len()) as f64 / self.t_train.elapsed().as_secs_f64();
@@ -685,7 +685,7 @@ impl Trainer {
         } else {
             self.engine
                 .optim_bytes()
-                .and_then(|o| save_checkpoint(&self.dir, &self.engine.net(), o, &self.cfg, done).map(|_| ()))
+                .and_then(|o| save_checkpoint(&self.dir, &self.engine.net(), o, &self.cfg.model, self.cfg.seed, done).map(|_| ()))
                 .and_then(|()| self.write_report().map(|_| ()))
         };
         match res {
@@ -723,7 +723,7 @@ impl Trainer {
         let bytes = serde_json::to_vec_pretty(&report).expect("json");
         write_atomic(&self.dir.join("report.json"), |w| w.write_all(&bytes))?;
         write_atomic(&self.dir.join("history.csv"), |w| w.write_all(history_csv(&report).as_bytes()))?;
-        crate::plot::training_curves(&self.dir.join("curves.png"), &report)?;
+        training_curves(&self.dir.join("curves.png"), &report)?;
         Ok(report)
     }
 
@@ -737,6 +737,32 @@ impl Trainer {
         }
         self.write_report()
     }
+}
+
+/// `curves.png`: the training loss (log10) and the validation PSNR against steps.
+///
+/// # Errors
+/// The file cannot be written.
+pub fn training_curves(path: &std::path::Path, r: &TrainReport) -> crate::Result<()> {
+    let mut c = crate::plot::Canvas::new(900, 640, [0.12, 0.12, 0.14]);
+    let loss = crate::plot::Series {
+        name: "LOG10 HUBER LOSS",
+        points: r.loss.iter().map(|p| (p.step as f64, p.loss.max(1e-12).log10())).collect(),
+        color: [0.95, 0.6, 0.2],
+    };
+    crate::plot::panel(&mut c, (10, 10, 880, 300), &format!("LOG10 TRAINING LOSS ({})", r.arch.to_uppercase()), "STEP", &[loss]);
+    let model = crate::plot::Series {
+        name: "MODEL",
+        points: r.validation.iter().map(|v| (v.step as f64, v.model.psnr_rgb)).collect(),
+        color: [0.3, 0.8, 0.4],
+    };
+    let input = crate::plot::Series {
+        name: "BLURRED INPUT",
+        points: r.validation.iter().map(|v| (v.step as f64, v.input.psnr_rgb)).collect(),
+        color: [0.6, 0.6, 0.9],
+    };
+    crate::plot::panel(&mut c, (10, 330, 880, 300), "VALIDATION PSNR RGB (DB)", "STEP", &[model, input]);
+    c.save(path)
 }
 
 /// The scalars of a run, one row per step: step, lr, loss, then (at validation steps) the model's
@@ -761,7 +787,7 @@ pub fn history_csv(r: &TrainReport) -> String {
 /// last good checkpoint stays).
 pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
     let mut t = Trainer::new(cfg, opts)?;
-    let shards = crate::config::expand_paths(&cfg.data.shards, &["tar"])?;
+    let shards = crate::io::paths::expand_paths(&cfg.data.shards, &["tar"])?;
     if shards.is_empty() {
         return Err(Error::Invalid("data.shards: no .tar file found".into()));
     }
@@ -810,7 +836,7 @@ mod tests {
             toml::from_str("[model]\ntype = \"shallow\"\nwidth = 4\n[data]\nshards = [\"x\"]\n[output]\ndir = \"x\"\n").unwrap();
         let dev = Device::flex();
         let net = Net::seeded(cfg.model, &dev, 1);
-        save_checkpoint(&dir, &net, Vec::new(), &cfg, 1).unwrap();
+        save_checkpoint(&dir, &net, Vec::new(), &cfg.model, cfg.seed, 1).unwrap();
         assert!(load_model(&dir.join("model-0000001.safetensors"), &dev).is_ok());
         let mut f = FastNet::from_net(&net);
         let mut first = true;
@@ -819,7 +845,7 @@ mod tests {
                 p[0] = f32::NAN;
             }
         });
-        save_checkpoint(&dir, &f.write_into(net), Vec::new(), &cfg, 2).unwrap();
+        save_checkpoint(&dir, &f.write_into(net), Vec::new(), &cfg.model, cfg.seed, 2).unwrap();
         let e = load_model(&dir.join("model-0000002.safetensors"), &dev).err().expect("refused").to_string();
         assert!(e.contains("model-0000002.safetensors") && e.contains("1 weights are not finite"), "{e}");
         std::fs::remove_dir_all(&dir).ok();

@@ -165,7 +165,7 @@ fn bench_plan(mode: &str, clip: &std::path::Path, out: &std::path::Path) -> crat
         ]);
         sets.extend(["sinks.shards.type=\"blackhole\"".into()]);
     }
-    let mut table = crate::config::parse(crate::cli::GENERATE_TOML, "pipelines/generate.toml (embedded)", &[])?;
+    let mut table = crate::config::parse(super::generate::GENERATE_TOML, "pipelines/generate.toml (embedded)", &[])?;
     if mode == "full frame" {
         // Drop the patch keys that a noise stage does not have.
         if let Some(t) = table.get_mut("transforms").and_then(|t| t.get_mut("patches")).and_then(|p| p.as_table_mut()) {
@@ -482,8 +482,7 @@ pub fn deblur(width: usize, height: usize, repeats: usize) -> crate::Result<Vec<
             1.0 / median(&mut t)
         };
         let whole = time(Tiling { tile: width.max(height), overlap: 0 });
-        let d = crate::commands::deblur::DeblurConfig::default();
-        let tiled = time(Tiling { tile: d.tile, overlap: d.overlap });
+        let tiled = time(Tiling::default());
         let torch_row: Option<serde_json::Value> = if let Some(script) = &script {
             let (kind, w) = match arch {
                 Arch::Unet { base } => ("unet", base),

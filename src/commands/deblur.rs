@@ -285,7 +285,7 @@ fn write_image(dst: &Path, ext: &str, w: usize, h: usize, rgb: &[u8]) -> Result<
 pub fn images(net: &FastNet, model_name: &str, input: &Path, output: &Path, tiling: Tiling, progress: bool) -> Result<DeblurReport> {
     crate::signal::install();
     let t0 = Instant::now();
-    let files = crate::config::expand_paths(&[input.display().to_string()], &IMAGE_EXTENSIONS)?;
+    let files = crate::io::paths::expand_paths(&[input.display().to_string()], &IMAGE_EXTENSIONS)?;
     if files.is_empty() {
         return Err(Error::Usage(format!("{}: no image found ({})", input.display(), IMAGE_EXTENSIONS.join(", "))));
     }

@@ -7,10 +7,10 @@
 //! the length of the motion, and every sigma of a window shares the same noise pattern (scaled),
 //! so the columns differ only in the noise level.
 
-use crate::config::expand_paths;
 use crate::frame::Frame;
 use crate::imaging::blur::Blurrer;
 use crate::imaging::{read_out, to_8bit};
+use crate::io::paths::expand_paths;
 use crate::io::video::VideoReader;
 use crate::io::write_atomic;
 use crate::metrics::{quality, Quality};

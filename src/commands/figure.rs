@@ -355,8 +355,7 @@ fn spoke(o: &FigureOptions, out: &Path) -> Result<Vec<Score>> {
         }
         Ok(crate::model::fast::FastNet::from_net(&crate::train::load_model(&p, &device)?.0))
     };
-    let d = crate::commands::deblur::DeblurConfig::default();
-    let tiling = crate::model::infer::Tiling { tile: d.tile, overlap: d.overlap };
+    let tiling = crate::model::infer::Tiling::default();
     let mut panels = vec![Panel::from_rgb8("(A) ROTATING TARGET, SHARP", w, h, &sharp)];
     let mut recon_panels = vec![Panel { label: String::new(), w, h, px: std::array::from_fn(|_| vec![1.0; w * h]) }];
     let mut scores = Vec::new();

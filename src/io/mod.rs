@@ -4,6 +4,7 @@ pub mod atomic;
 pub mod exr;
 pub mod font;
 pub mod npy;
+pub mod paths;
 pub mod png;
 pub mod tar;
 #[cfg(feature = "ffmpeg")]

@@ -3,7 +3,6 @@
 
 use crate::io::write_atomic;
 use crate::model::{Arch, Net};
-use crate::train::TrainConfig;
 use crate::{Error, Result};
 use burn::module::{Module, ModuleMapper, ModuleVisitor, Param, ParamId};
 use burn::store::{ModuleSnapshot, SafetensorsStore};
@@ -46,15 +45,15 @@ impl ModuleMapper for IdSetter {
     }
 }
 
-/// Saves the model (safetensors, config and step in the metadata) and the optimizer state.
-pub fn save_checkpoint(dir: &Path, model: &Net, optim_bytes: Vec<u8>, cfg: &TrainConfig, step: usize) -> Result<Latest> {
+/// Saves the model (safetensors; architecture, seed and step in the metadata) and the optimizer state.
+pub fn save_checkpoint(dir: &Path, model: &Net, optim_bytes: Vec<u8>, arch: &Arch, seed: u64, step: usize) -> Result<Latest> {
     let name = format!("model-{step:07}.safetensors");
     let path = dir.join(&name);
     let mut store = SafetensorsStore::from_file(&path)
         .metadata("pipeline_version", env!("CARGO_PKG_VERSION"))
-        .metadata("arch", serde_json::to_string(&cfg.model).expect("json"))
+        .metadata("arch", serde_json::to_string(arch).expect("json"))
         .metadata("step", step.to_string())
-        .metadata("seed", cfg.seed.to_string())
+        .metadata("seed", seed.to_string())
         .metadata("input", "[n, 3, h, w] encoded sRGB in [0, 1]; output = input + residual")
         .metadata("param_ids", {
             let mut c = IdCollector(Vec::new());

@@ -92,12 +92,12 @@ pub fn run_frame(net: &FastNet, rgb: &[u8], w: usize, h: usize, tiling: Tiling) 
 /// Loads `--model`, or the embedded default.
 ///
 /// # Errors
-/// As [`crate::train::load_model`].
+/// As [`crate::model::checkpoint::load_model`].
 pub fn load(model: Option<&Path>) -> Result<(FastNet, String)> {
     let device = Device::flex();
     let (net, name) = match model {
-        Some(p) => crate::train::load_model(p, &device).map(|(n, a)| (n, format!("{} ({})", p.display(), a.name())))?,
-        None => crate::train::load_model_bytes(DEFAULT_MODEL, "embedded models/unet16-coded", &device)
+        Some(p) => crate::model::checkpoint::load_model(p, &device).map(|(n, a)| (n, format!("{} ({})", p.display(), a.name())))?,
+        None => crate::model::checkpoint::load_model_bytes(DEFAULT_MODEL, "embedded models/unet16-coded", &device)
             .map(|(n, a)| (n, format!("models/unet16-coded ({})", a.name())))?,
     };
     Ok((FastNet::from_net(&net), name))

@@ -32,7 +32,7 @@ impl StageConfig for DecodeConfig {
         Vec::new()
     }
     fn list(&self) -> crate::Result<InputList> {
-        crate::config::expand_paths(&self.paths, VIDEO_EXTS).map(InputList::Files)
+        crate::io::paths::expand_paths(&self.paths, VIDEO_EXTS).map(InputList::Files)
     }
     fn build(&self, ctx: &BuildContext) -> crate::Result<Built> {
         Ok(Built::Source(Box::new(Decode {

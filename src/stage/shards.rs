@@ -106,7 +106,7 @@ impl StageConfig for ShardsConfig {
 /// A PNG of an image (quantising linear light without noise).
 pub(crate) fn png_bytes(img: &Img, w: usize, h: usize, curve: Curve) -> Vec<u8> {
     let mut buf = Vec::new();
-    png_io::write_rgb8(&mut buf, w, h, &img.rgb8(w, h, curve)).expect("png into memory");
+    png_io::write_rgb8(&mut buf, w, h, &crate::imaging::img_rgb8(img, w, h, curve)).expect("png into memory");
     buf
 }
 

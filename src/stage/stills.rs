@@ -80,7 +80,7 @@ impl StageConfig for StillsConfig {
         if self.paths.is_empty() {
             return Ok(InputList::Procedural(self.clips));
         }
-        crate::config::expand_paths(&self.paths, &["png"]).map(InputList::Files)
+        crate::io::paths::expand_paths(&self.paths, &["png"]).map(InputList::Files)
     }
     fn build(&self, ctx: &BuildContext) -> crate::Result<Built> {
         Ok(Built::Source(Box::new(Stills {

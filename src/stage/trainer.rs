@@ -132,7 +132,7 @@ impl Sink for TrainerSink {
             Item::Sample(s) => {
                 let t = self.trainer.as_mut().expect("open");
                 for p in &s.pairs {
-                    let rgb = |img: &Img| img.rgb8(p.w, p.h, s.curve);
+                    let rgb = |img: &Img| crate::imaging::img_rgb8(img, p.w, p.h, s.curve);
                     let pair = Pair {
                         key: format!("{}_{:06}", s.input.key, s.window),
                         source: hash_str(&s.input.key),
