@@ -11,22 +11,12 @@ use crate::stage::{input_key, BuildContext, Built, Counters, Emit, InputList, Si
 use crate::{Error, Result};
 use crossbeam_channel::{bounded, Receiver, RecvTimeoutError};
 use serde::Serialize;
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-/// How progress is shown.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum ProgressMode {
-    /// Bars on a terminal, status lines otherwise.
-    Auto,
-    /// Status lines every few seconds.
-    Lines,
-    /// Nothing but the summary.
-    Never,
-}
+use crate::progress::ProgressMode;
 
 /// How this run fits a sharded job and where it writes.
 #[derive(Debug, Clone)]
@@ -438,8 +428,8 @@ struct Progress {
 
 impl Progress {
     fn new(mode: ProgressMode, counters: Arc<Counters>, inputs: usize) -> Progress {
-        let tty = std::io::stderr().is_terminal();
-        let bars = (mode == ProgressMode::Auto && tty).then(|| {
+        let mode = mode.resolve();
+        let bars = (mode == ProgressMode::Auto).then(|| {
             let mp = indicatif::MultiProgress::new();
             let style = indicatif::ProgressStyle::with_template("{prefix:>8} {spinner} {pos:>8} {msg}").expect("template");
             let mk = |p: &str| {
@@ -452,7 +442,6 @@ impl Progress {
             bars[0].set_message(format!("of {inputs} inputs"));
             (mp, bars)
         });
-        let mode = if mode == ProgressMode::Auto && !tty { ProgressMode::Lines } else { mode };
         Progress { mode, counters, start: Instant::now(), last: Mutex::new(Instant::now()), bars }
     }
 

@@ -25,6 +25,7 @@ pub mod metrics;
 pub mod model;
 pub mod optics;
 pub mod plot;
+pub mod progress;
 pub mod provenance;
 pub mod recon;
 pub mod rng;

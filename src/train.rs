@@ -424,7 +424,7 @@ pub struct TrainReport {
 /// Options of one `pipeline train` call.
 pub struct TrainOptions {
     pub resume: bool,
-    pub progress: bool,
+    pub progress: crate::progress::ProgressMode,
     /// Stop after this step (tests of resume); None: run to `optim.steps`.
     pub stop_after: Option<usize>,
 }
@@ -503,8 +503,7 @@ pub struct Trainer {
     vals: Vec<ValPoint>,
     t0: Instant,
     t_train: Instant,
-    last_line: Instant,
-    bar: Option<indicatif::ProgressBar>,
+    bar: crate::progress::Bar,
 }
 
 impl Trainer {
@@ -576,11 +575,7 @@ impl Trainer {
             Engine::Burn { device, model, optim, huber: HuberLossConfig::new(cfg.optim.huber_delta as f32).init() }
         };
         let end = opts.stop_after.unwrap_or(cfg.optim.steps).min(cfg.optim.steps);
-        let bar = opts.progress.then(|| {
-            let b = indicatif::ProgressBar::new(end.saturating_sub(start) as u64);
-            b.set_style(indicatif::ProgressStyle::with_template("train {bar:30} {pos}/{len} steps, eta {eta} {msg}").expect("template"));
-            b
-        });
+        let bar = crate::progress::Bar::new(opts.progress, "train", "steps", Some(end.saturating_sub(start) as u64));
         Ok(Trainer {
             cfg: cfg.clone(),
             dir,
@@ -595,7 +590,6 @@ impl Trainer {
             vals: history.1,
             t0: Instant::now(),
             t_train: Instant::now(),
-            last_line: Instant::now(),
             bar,
         })
     }
@@ -661,17 +655,8 @@ impl Trainer {
             "loss {lv:.5} lr {lr:.2e} {rate:.1} patches/s{}",
             self.vals.last().map_or(String::new(), |v| format!(" val PSNR {:.2}", v.model.psnr_rgb))
         );
-        match &self.bar {
-            Some(b) => {
-                b.set_position((done - self.start) as u64);
-                b.set_message(msg);
-            }
-            None if self.last_line.elapsed().as_secs() >= 5 => {
-                eprintln!("train: step {done}/{} {msg}", self.end);
-                self.last_line = Instant::now();
-            }
-            None => {}
-        }
+        self.bar.set_message(format!("(step {done}/{}) {msg}", self.end));
+        self.bar.set_position((done - self.start) as u64);
         Ok(())
     }
 
@@ -732,9 +717,7 @@ impl Trainer {
     /// # Errors
     /// They cannot be written.
     pub fn finish(self) -> Result<TrainReport> {
-        if let Some(b) = &self.bar {
-            b.finish();
-        }
+        self.bar.finish();
         self.write_report()
     }
 }

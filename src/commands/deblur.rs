@@ -8,6 +8,7 @@ use super::ConfigArgs;
 use crate::io::{png as png_io, write_atomic};
 use crate::model::fast::FastNet;
 use crate::model::infer::{run_frame, Tiling};
+use crate::progress::{Bar, ProgressMode};
 use crate::{Error, Result};
 use anyhow::bail;
 use clap::Args;
@@ -155,7 +156,7 @@ pub fn video(
     output: &Path,
     tiling: Tiling,
     lossless: bool,
-    progress: bool,
+    progress: ProgressMode,
 ) -> Result<DeblurReport> {
     use crate::io::video::{VideoReader, VideoWriter};
     crate::signal::install();
@@ -169,7 +170,7 @@ pub fn video(
     }
     let tmp = temp_for(output);
     let mut writer = VideoWriter::create(&tmp, w, h, reader.rate, lossless).map_err(|e| name(output, e))?;
-    let bar = progress.then(|| progress_bar(reader.info.frames_announced.unwrap_or(0)));
+    let bar = Bar::new(progress, "deblur", "frames", reader.info.frames_announced);
     let result = (|| -> Result<u64> {
         while let Some(f) = reader.next_frame().map_err(|e| name(input, e))? {
             if crate::signal::interrupted() {
@@ -178,10 +179,9 @@ pub fn video(
             let rgb = to_rgb8(&f, reader.float);
             let out = run_frame(net, &rgb, w, h, tiling);
             writer.write_rgb8(&out).map_err(|e| name(output, e))?;
-            if let Some(b) = &bar {
-                b.inc(1);
-            }
+            bar.inc(1);
         }
+        bar.finish();
         let n = writer.finish().map_err(|e| name(output, e))?;
         std::fs::rename(&tmp, output).map_err(|e| Error::Io { path: output.to_path_buf(), cause: e })?;
         Ok(n)
@@ -282,7 +282,14 @@ fn write_image(dst: &Path, ext: &str, w: usize, h: usize, rgb: &[u8]) -> Result<
 /// # Errors
 /// No image found, an output folder that cannot be made, an interruption (SIGINT, SIGTERM;
 /// finished images stay, each written whole).
-pub fn images(net: &FastNet, model_name: &str, input: &Path, output: &Path, tiling: Tiling, progress: bool) -> Result<DeblurReport> {
+pub fn images(
+    net: &FastNet,
+    model_name: &str,
+    input: &Path,
+    output: &Path,
+    tiling: Tiling,
+    progress: ProgressMode,
+) -> Result<DeblurReport> {
     crate::signal::install();
     let t0 = Instant::now();
     let files = crate::io::paths::expand_paths(&[input.display().to_string()], &IMAGE_EXTENSIONS)?;
@@ -291,7 +298,7 @@ pub fn images(net: &FastNet, model_name: &str, input: &Path, output: &Path, tili
     }
     std::fs::create_dir_all(output).map_err(|e| Error::Io { path: output.to_path_buf(), cause: e })?;
     remove_stale(output);
-    let bar = progress.then(|| progress_bar(files.len() as u64));
+    let bar = Bar::new(progress, "deblur", "images", Some(files.len() as u64));
     let (mut w, mut h, mut done) = (0, 0, 0);
     let mut failed = Vec::new();
     for f in &files {
@@ -319,23 +326,12 @@ pub fn images(net: &FastNet, model_name: &str, input: &Path, output: &Path, tili
                 failed.push(FailedImage { path: f.display().to_string(), error });
             }
         }
-        if let Some(b) = &bar {
-            b.inc(1);
-        }
+        bar.inc(1);
     }
-    if let Some(b) = bar {
-        b.finish_and_clear();
-    }
+    bar.finish();
     let mut r = DeblurReport::new(input, output, model_name, done, (w, h), None, tiling, t0, "none (images)");
     r.failed = failed;
     Ok(r)
-}
-
-/// The progress bar of `deblur`: frames done, frames/s, time left.
-fn progress_bar(len: u64) -> indicatif::ProgressBar {
-    let b = indicatif::ProgressBar::new(len);
-    b.set_style(indicatif::ProgressStyle::with_template("deblur {bar:30} {pos}/{len} frames {per_sec} eta {eta}").expect("template"));
-    b
 }
 
 /// Writes the report beside the output.
@@ -388,7 +384,7 @@ pub fn command(a: DeblurArgs) -> anyhow::Result<()> {
     let model = model.or_else(|| (!d.model.is_empty()).then(|| PathBuf::from(&d.model)));
     let (net, name) = crate::model::infer::load(model.as_deref())?;
     let tiling = crate::model::infer::Tiling { tile: d.tile, overlap: d.overlap };
-    let bar = file.bar();
+    let bar = file.progress;
     let r = if input.is_dir() || input.to_string_lossy().contains('*') {
         crate::commands::deblur::images(&net, &name, &input, &out, tiling, bar)?
     } else {

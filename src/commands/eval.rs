@@ -246,7 +246,14 @@ fn read_frames(path: &Path, first: u64, last: u64, curve: Curve) -> Result<Vec<A
 /// # Errors
 /// A video that cannot be read or is too short for one window of the longest length (named),
 /// an output that cannot be written.
-pub fn run(f: &EvalFile, net: &FastNet, model: &str, videos: &[String], out: &Path, progress: bool) -> Result<EvalReport> {
+pub fn run(
+    f: &EvalFile,
+    net: &FastNet,
+    model: &str,
+    videos: &[String],
+    out: &Path,
+    progress: crate::progress::ProgressMode,
+) -> Result<EvalReport> {
     let t0 = Instant::now();
     let e = &f.eval;
     let paths = expand_paths(videos, crate::stage::input::VIDEO_EXTS)?;
@@ -261,11 +268,7 @@ pub fn run(f: &EvalFile, net: &FastNet, model: &str, videos: &[String], out: &Pa
     let enc = Encoder::new(e.curve);
     let tiling = Tiling { tile: e.tile, overlap: e.overlap };
     let total = (paths.len() * e.windows_per_video * e.windows.len() * e.sigmas.len()) as u64;
-    let bar = progress.then(|| {
-        let b = indicatif::ProgressBar::new(total);
-        b.set_style(indicatif::ProgressStyle::with_template("eval {bar:30} {pos}/{len} windows {per_sec} {msg}").expect("template"));
-        b
-    });
+    let bar = crate::progress::Bar::new(progress, "eval", "windows", Some(total));
     let top_sigma = e.sigmas.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     let mut records = Vec::new();
     let mut examples_left = e.examples;
@@ -320,17 +323,13 @@ pub fn run(f: &EvalFile, net: &FastNet, model: &str, videos: &[String], out: &Pa
                         )?;
                     }
                     records.push(Record { video: video.clone(), frame: first + c, window: n, sigma, blurred: qb, deblurred: qd, example });
-                    if let Some(b) = &bar {
-                        b.inc(1);
-                        b.set_message(format!("{} N={n} sigma={sigma}", path.file_name().unwrap_or_default().to_string_lossy()));
-                    }
+                    bar.inc(1);
+                    bar.set_message(format!("{} N={n} sigma={sigma}", path.file_name().unwrap_or_default().to_string_lossy()));
                 }
             }
         }
     }
-    if let Some(b) = bar {
-        b.finish_and_clear();
-    }
+    bar.finish();
     let table = e.windows.iter().map(|&n| cell(&records, n, None)).collect();
     let per_sigma =
         e.windows.iter().flat_map(|&n| e.sigmas.iter().map(move |&s| (n, s))).map(|(n, s)| cell(&records, n, Some(s))).collect();
@@ -475,7 +474,7 @@ pub fn command(a: EvalArgs) -> anyhow::Result<()> {
         f.camera.kind = k;
     }
     let (net, name) = crate::model::infer::load(model.as_deref())?;
-    let bar = file.bar();
+    let bar = file.progress;
     let r = crate::commands::eval::run(&f, &net, &name, &videos, &out, bar)?;
     println!("{}", crate::commands::eval::markdown(&r));
     eprintln!("{} windows scored in {:.0} s -> {}", r.records.len(), r.seconds, out.join("eval.md").display());

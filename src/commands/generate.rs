@@ -1,7 +1,8 @@
 //! `pipeline generate`, `run` and `validate`: pipelines from the command line.
 
 use super::psf::OpticsFile;
-use crate::graph::{ProgressMode, RunOptions};
+use crate::graph::RunOptions;
+use crate::progress::ProgressMode;
 use clap::Args;
 use std::path::PathBuf;
 

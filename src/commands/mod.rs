@@ -13,7 +13,7 @@ pub mod psf;
 #[cfg(feature = "train")]
 pub mod train;
 
-use crate::graph::ProgressMode;
+use crate::progress::ProgressMode;
 use clap::Args;
 use std::path::PathBuf;
 
@@ -36,15 +36,6 @@ impl ConfigArgs {
     pub fn load(&self, embedded: &str, name: &str) -> crate::Result<(toml::Table, String)> {
         load_or_embedded(self.config.as_deref(), embedded, name, &self.sets)
     }
-
-    pub fn bar(&self) -> bool {
-        bars(self.progress)
-    }
-}
-
-/// Progress bars: on a terminal, unless told otherwise.
-pub fn bars(progress: ProgressMode) -> bool {
-    progress == ProgressMode::Auto && std::io::IsTerminal::is_terminal(&std::io::stderr())
 }
 
 /// The file given with `--config`, or the embedded default named `name`, with `--set` applied;

@@ -1,6 +1,6 @@
 //! `pipeline train`: the command line of [`crate::train`].
 
-use crate::graph::ProgressMode;
+use crate::progress::ProgressMode;
 use clap::Args;
 use std::path::PathBuf;
 
@@ -32,8 +32,7 @@ pub fn command(a: TrainArgs) -> anyhow::Result<()> {
         (Some(cfg), errs) if errs.is_empty() => cfg,
         (_, errs) => return Err(origin.errors(errs).into()),
     };
-    let bar = super::bars(progress);
-    let r = crate::train::train(&cfg, &crate::train::TrainOptions { resume, progress: bar, stop_after: None })?;
+    let r = crate::train::train(&cfg, &crate::train::TrainOptions { resume, progress, stop_after: None })?;
     let last = r.validation.last();
     eprintln!(
         "{}: {} steps in {:.0} s ({:.1} patches/s){} -> {}",

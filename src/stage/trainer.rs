@@ -104,7 +104,10 @@ impl TrainerSink {
     /// # Errors
     /// As [`Trainer::new`].
     pub fn new(cfg: &TrainerSinkConfig, seed: u64) -> Result<TrainerSink> {
-        let t = Trainer::new(&cfg.to_train_config(seed), &TrainOptions { resume: false, progress: false, stop_after: None })?;
+        let t = Trainer::new(
+            &cfg.to_train_config(seed),
+            &TrainOptions { resume: false, progress: crate::progress::ProgressMode::Never, stop_after: None },
+        )?;
         Ok(TrainerSink {
             trainer: Some(t),
             buffer: Vec::new(),

@@ -111,7 +111,15 @@ fn png_jpeg_tiff_and_exr_keep_names_and_formats_and_an_identity_model_keeps_the_
 
     let dev = Device::flex();
     let identity = FastNet::from_net(&Net::new(Arch::Shallow { width: 8 }, &dev).zero_last_layer(&dev));
-    let r = pipeline::commands::deblur::images(&identity, "identity", &src, &dst, Tiling { tile: 64, overlap: 16 }, false).unwrap();
+    let r = pipeline::commands::deblur::images(
+        &identity,
+        "identity",
+        &src,
+        &dst,
+        Tiling { tile: 64, overlap: 16 },
+        pipeline::progress::ProgressMode::Never,
+    )
+    .unwrap();
     assert_eq!(r.frames, 4);
     assert_eq!(files(&dst), vec!["a.jpg", "b.tif", "c.png", "d.exr"]);
     let magic = |n: &str| std::fs::read(dst.join(n)).unwrap()[..4].to_vec();

@@ -45,7 +45,7 @@ fn config(shards: &Path, out: &Path, extra: &str) -> TrainConfig {
 }
 
 fn opts(stop_after: Option<usize>, resume: bool) -> TrainOptions {
-    TrainOptions { resume, progress: false, stop_after }
+    TrainOptions { resume, progress: pipeline::progress::ProgressMode::Never, stop_after }
 }
 
 fn probe(dev: &Device) -> Tensor<4> {
