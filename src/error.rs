@@ -12,6 +12,9 @@ pub enum Error {
     Config(Vec<crate::optics::ConfigError>),
     #[error("{0}")]
     Invalid(String),
+    /// A stage of a pipeline failed; the cause is kept (and printed after it).
+    #[error("stage {stage}")]
+    Stage { stage: String, source: Box<Error> },
     /// A pipeline file that does not parse or has an unknown key.
     #[error("{0}")]
     ConfigText(String),

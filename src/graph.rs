@@ -163,7 +163,7 @@ type FirstError = Arc<Mutex<Option<Error>>>;
 fn record(first: &FirstError, stop: &AtomicBool, stage: &str, e: Error) {
     let mut g = first.lock().expect("error slot");
     if g.is_none() {
-        *g = Some(Error::Invalid(format!("stage {stage}: {e}")));
+        *g = Some(Error::Stage { stage: stage.to_string(), source: Box::new(e) });
     }
     stop.store(true, Ordering::Relaxed);
 }
@@ -252,7 +252,7 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
             settings: &settings,
         };
         let kind = serde_json::to_value(st).ok().and_then(|v| v["type"].as_str().map(str::to_string)).unwrap_or_default();
-        match st.config().build(&ctx).map_err(|e| Error::Invalid(format!("stage {name}: {e}")))? {
+        match st.config().build(&ctx).map_err(|e| Error::Stage { stage: name.clone(), source: Box::new(e) })? {
             Built::Source(s) => source = Some(s),
             Built::Transform(t) => transforms.push((name.clone(), kind, t)),
             Built::Sink(s) => sink = Some((name.clone(), s)),

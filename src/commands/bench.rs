@@ -1,5 +1,8 @@
 //! `pipeline bench`: measured speed, kept apart from the tests. Each figure is the median of
 //! several repeats because the machines are shared and noisy.
+//!
+//! Longer than 600 lines because each benchmark carries its baseline (FFmpeg decode-only,
+//! PyTorch on the same network and thread count) and its report in the same place.
 
 use crate::optics::{Camera, CameraConfig, CameraKind, OpticsConfig};
 use std::time::Instant;

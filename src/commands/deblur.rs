@@ -10,7 +10,6 @@ use crate::model::fast::FastNet;
 use crate::model::infer::{run_frame, Tiling};
 use crate::progress::{Bar, ProgressMode};
 use crate::{Error, Result};
-use anyhow::bail;
 use clap::Args;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -374,7 +373,7 @@ pub fn command(a: DeblurArgs) -> anyhow::Result<()> {
     let DeblurArgs { input, out, model, tile, overlap, lossless, file } = a;
     let same = input.canonicalize().ok().zip(out.canonicalize().ok()).is_some_and(|(a, b)| a == b) || input == out;
     if same {
-        bail!("{}: the output is the input; choose another output path", out.display());
+        return Err(Error::Usage(format!("{}: the output is the input; choose another output path", out.display())).into());
     }
     let (table, origin) = file.load(crate::commands::deblur::DEBLUR_TOML, "pipelines/deblur.toml")?;
     let mut d = crate::commands::deblur::DeblurFile::from_table(table, &origin)?.deblur;

@@ -561,10 +561,10 @@ pub struct FigureArgs {
 pub fn command(a: FigureArgs) -> anyhow::Result<()> {
     let FigureArgs { name, out, sigma, travel, size, models, seed, lr_iterations, flutter_lambda } = a;
     if !(0.0..=50.0).contains(&sigma) || !(0.0..=200.0).contains(&travel) || !(32..=2048).contains(&size) {
-        anyhow::bail!("--sigma must be in 0..50, --travel in 0..200 and --size in 32..2048");
+        return Err(crate::Error::Usage("--sigma must be in 0..50, --travel in 0..200 and --size in 32..2048".into()).into());
     }
     if !(flutter_lambda > 0.0 && flutter_lambda <= 10.0) {
-        anyhow::bail!("--flutter-lambda must be above 0 and at most 10 (got {flutter_lambda})");
+        return Err(crate::Error::Usage(format!("--flutter-lambda must be above 0 and at most 10 (got {flutter_lambda})")).into());
     }
     let o = crate::commands::figure::FigureOptions {
         sigma,

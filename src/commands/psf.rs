@@ -4,7 +4,7 @@
 use crate::io::{exr, font, npy, png as png_io, write_atomic};
 use crate::optics::{Camera, CameraConfig, CameraKind, Dispersion, Lens, OpticsConfig, Psf, Spectrum};
 use crate::{Error, Result};
-use anyhow::{bail, Context};
+use anyhow::Context;
 use clap::Args;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -358,7 +358,7 @@ pub fn command(a: PsfArgs) -> anyhow::Result<()> {
         (Some(p), None) => PsfRequest::Psi(p.0),
         (None, Some(n)) => PsfRequest::Window(n as usize),
         (None, None) => PsfRequest::Psi(parse_psi_list("0:8:9").expect("default psi list")),
-        (Some(_), Some(_)) => bail!("--psi and --window exclude each other"),
+        (Some(_), Some(_)) => return Err(Error::Usage("--psi and --window exclude each other".into()).into()),
     };
     let window = matches!(req, PsfRequest::Window(_));
     let t0 = std::time::Instant::now();

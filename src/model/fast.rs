@@ -17,6 +17,10 @@
 //! tensor sizes, never on the thread count; per-unit partial weight gradients are summed in unit
 //! order, and per-channel statistics are summed in a fixed order in f64. The same seed gives the
 //! same weights with any number of threads.
+//!
+//! Longer than 600 lines on purpose: the layers' forward and backward passes share one buffer
+//! layout (NCHW, im2col columns, row bands) and its helpers; split by op, one layout would be
+//! spread over files. A third of the file is the tests against burn at the end.
 
 use super::Net;
 use burn::module::Param;

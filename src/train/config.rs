@@ -1,0 +1,201 @@
+//! The training file: `[model]`, `[data]`, `[optim]`, `[validate]`, `[output]`, with every
+//! value checked and named by its key.
+
+use crate::model::Arch;
+use serde::{Deserialize, Serialize};
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DataConfig {
+    /// Shard files, folders of `.tar` files, or file-name globs.
+    pub shards: Vec<String>,
+    /// Share of the source inputs (videos) held apart for validation.
+    #[serde(default = "d_val_fraction")]
+    pub val_fraction: f64,
+    /// Samples held in the shuffle buffer.
+    #[serde(default = "d_shuffle")]
+    pub shuffle_buffer: usize,
+    /// Random flips and 90-degree rotations.
+    #[serde(default = "d_true")]
+    pub augment: bool,
+}
+
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LrSchedule {
+    Constant,
+    /// Linear warm-up, then cosine decay to `lr * lr_min_factor`.
+    Cosine,
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OptimConfig {
+    #[serde(default = "d_steps")]
+    pub steps: usize,
+    #[serde(default = "d_batch")]
+    pub batch: usize,
+    #[serde(default = "d_lr")]
+    pub lr: f64,
+    #[serde(default = "d_schedule")]
+    pub schedule: LrSchedule,
+    #[serde(default = "d_warmup")]
+    pub warmup_steps: usize,
+    #[serde(default = "d_lr_min")]
+    pub lr_min_factor: f64,
+    /// Huber delta on the [0, 1] scale of encoded values.
+    #[serde(default = "d_delta")]
+    pub huber_delta: f64,
+    /// Start from the identity: the last layer zeroed, so the residual passes the input.
+    #[serde(default = "d_true")]
+    pub zero_init: bool,
+    /// `fast`: the CPU path of `src/model/fast.rs` (im2col + gemm on all cores); `burn`: burn's
+    /// autodiff on its flex CPU backend (the reference; with the `wgpu`/`cuda` features the
+    /// path a GPU build takes).
+    #[serde(default)]
+    pub engine: EngineKind,
+}
+
+/// Which implementation runs a training step.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EngineKind {
+    #[default]
+    Fast,
+    Burn,
+}
+
+impl Default for OptimConfig {
+    fn default() -> Self {
+        OptimConfig {
+            steps: d_steps(),
+            batch: d_batch(),
+            lr: d_lr(),
+            schedule: d_schedule(),
+            warmup_steps: d_warmup(),
+            lr_min_factor: d_lr_min(),
+            huber_delta: d_delta(),
+            zero_init: true,
+            engine: EngineKind::Fast,
+        }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ValidateConfig {
+    #[serde(default = "d_every")]
+    pub every: usize,
+    #[serde(default = "d_val_max")]
+    pub max_samples: usize,
+}
+
+impl Default for ValidateConfig {
+    fn default() -> Self {
+        ValidateConfig { every: d_every(), max_samples: d_val_max() }
+    }
+}
+
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputConfig {
+    pub dir: String,
+    /// Steps between checkpoints (the last step is always saved).
+    #[serde(default = "d_ckpt")]
+    pub checkpoint_every: usize,
+}
+
+/// A training file (`pipelines/train.toml`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainConfig {
+    #[serde(default)]
+    pub seed: u64,
+    pub model: Arch,
+    pub data: DataConfig,
+    #[serde(default)]
+    pub optim: OptimConfig,
+    #[serde(default)]
+    pub validate: ValidateConfig,
+    pub output: OutputConfig,
+}
+
+pub(crate) fn d_val_fraction() -> f64 {
+    0.2
+}
+pub(crate) fn d_shuffle() -> usize {
+    256
+}
+pub(crate) fn d_true() -> bool {
+    true
+}
+fn d_steps() -> usize {
+    200
+}
+fn d_batch() -> usize {
+    8
+}
+fn d_lr() -> f64 {
+    1e-3
+}
+fn d_schedule() -> LrSchedule {
+    LrSchedule::Cosine
+}
+fn d_warmup() -> usize {
+    20
+}
+fn d_lr_min() -> f64 {
+    0.1
+}
+fn d_delta() -> f64 {
+    0.02
+}
+fn d_every() -> usize {
+    50
+}
+fn d_val_max() -> usize {
+    64
+}
+pub(crate) fn d_ckpt() -> usize {
+    100
+}
+
+impl TrainConfig {
+    /// Every value error, each naming its key.
+    pub fn validate(&self) -> Vec<crate::optics::ConfigError> {
+        let mut c = crate::optics::config::Checker::new("");
+        match self.model {
+            Arch::Unet { base } => c.range_usize("model.base", base, 1, 256),
+            Arch::Shallow { width } => c.range_usize("model.width", width, 1, 1024),
+        }
+        if self.data.shards.is_empty() {
+            c.fail("data.shards", "names no shard");
+        }
+        c.range("data.val_fraction", self.data.val_fraction, 0.0, 0.9);
+        c.range_usize("data.shuffle_buffer", self.data.shuffle_buffer, 1, 1_000_000);
+        c.range_usize("optim.steps", self.optim.steps, 1, 100_000_000);
+        c.range_usize("optim.batch", self.optim.batch, 1, 4096);
+        c.range("optim.lr", self.optim.lr, 1e-8, 1.0);
+        c.range("optim.lr_min_factor", self.optim.lr_min_factor, 0.0, 1.0);
+        c.range("optim.huber_delta", self.optim.huber_delta, 1e-6, 10.0);
+        c.range_usize("validate.every", self.validate.every, 1, 100_000_000);
+        c.range_usize("output.checkpoint_every", self.output.checkpoint_every, 1, 100_000_000);
+        c.errors
+    }
+
+    /// Learning rate at `step` (0-based).
+    pub fn lr_at(&self, step: usize) -> f64 {
+        let o = &self.optim;
+        if step < o.warmup_steps {
+            return o.lr * (step + 1) as f64 / o.warmup_steps as f64;
+        }
+        match o.schedule {
+            LrSchedule::Constant => o.lr,
+            LrSchedule::Cosine => {
+                let t = (step - o.warmup_steps) as f64 / (o.steps.saturating_sub(o.warmup_steps)).max(1) as f64;
+                let min = o.lr * o.lr_min_factor;
+                min + 0.5 * (o.lr - min) * (1.0 + (std::f64::consts::PI * t.min(1.0)).cos())
+            }
+        }
+    }
+}
