@@ -1,7 +1,7 @@
 //! `blackhole`: counts what arrives and keeps nothing (benchmarks, dry runs).
 
 use super::shards::default_dir;
-use super::{BuildContext, Built, Counters, Kind, Role, Sink, StageConfig};
+use super::{BuildContext, Built, Counters, Sink, StageConfig};
 use crate::frame::Item;
 use crate::optics::ConfigError;
 use serde::{Deserialize, Serialize};
@@ -17,23 +17,9 @@ pub struct BlackholeConfig {
 }
 
 impl StageConfig for BlackholeConfig {
-    fn role(&self) -> Role {
-        Role::Sink
-    }
-    fn inputs(&self) -> &[String] {
-        &self.inputs
-    }
-    fn kinds(&self) -> (Kind, Kind) {
-        (Kind::Samples, Kind::Samples)
-    }
+    super::wiring!(sink, Samples);
     fn validate(&self, _key: &str) -> Vec<ConfigError> {
         Vec::new()
-    }
-    fn out_dir(&self) -> Option<&str> {
-        Some(&self.dir)
-    }
-    fn set_out_dir(&mut self, dir: String) {
-        self.dir = dir;
     }
     fn build(&self, ctx: &BuildContext) -> crate::Result<Built> {
         Ok(Built::Sink(Box::new(Blackhole { counters: ctx.counters.clone(), samples: 0, pending: 0, failed: Vec::new() })))

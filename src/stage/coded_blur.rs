@@ -5,7 +5,7 @@
 //! blurring the whole frame.
 
 use super::patches::Selector;
-use super::{BuildContext, Built, Counters, Emit, Kind, Needs, Role, StageConfig, StageError, StageResult, Transform};
+use super::{BuildContext, Built, Counters, Emit, Needs, StageConfig, StageError, StageResult, Transform};
 use crate::frame::{Frame, Img, Input, Item, Pair, Sample};
 use crate::imaging::blur::Blurrer;
 use crate::optics::config::Checker;
@@ -48,15 +48,7 @@ fn default_window() -> usize {
 }
 
 impl StageConfig for BlurConfig {
-    fn role(&self) -> Role {
-        Role::Transform
-    }
-    fn inputs(&self) -> &[String] {
-        &self.inputs
-    }
-    fn kinds(&self) -> (Kind, Kind) {
-        (Kind::LinearFrames, Kind::Samples)
-    }
+    super::wiring!(transform, LinearFrames -> Samples);
     fn validate(&self, key: &str) -> Vec<ConfigError> {
         let mut c = Checker::new(key);
         c.range_usize("window", self.window, 1, 64);

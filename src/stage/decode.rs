@@ -1,7 +1,7 @@
 //! `decode`: video files through FFmpeg, frame by frame, as encoded frames.
 
 use super::input::{check_size, VIDEO_EXTS};
-use super::{BuildContext, Built, Counters, Emit, InputList, Kind, Needs, Role, Source, StageConfig};
+use super::{BuildContext, Built, Counters, Emit, InputList, Needs, Source, StageConfig};
 use crate::frame::{Input, Item};
 use crate::optics::ConfigError;
 use serde::{Deserialize, Serialize};
@@ -22,12 +22,7 @@ pub struct DecodeConfig {
 }
 
 impl StageConfig for DecodeConfig {
-    fn role(&self) -> Role {
-        Role::Source
-    }
-    fn kinds(&self) -> (Kind, Kind) {
-        (Kind::EncodedFrames, Kind::EncodedFrames)
-    }
+    super::wiring!(source, EncodedFrames);
     fn validate(&self, _key: &str) -> Vec<ConfigError> {
         Vec::new()
     }

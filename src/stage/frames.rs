@@ -1,7 +1,7 @@
 //! `frames`: full-size pairs in the GoPro folder layout, 8-bit PNG or linear OpenEXR.
 
 use super::shards::{default_dir, png_bytes};
-use super::{BuildContext, Built, Counters, Kind, Role, Sink, StageConfig};
+use super::{BuildContext, Built, Counters, Sink, StageConfig};
 use crate::frame::{Img, Item, Pair, Sample};
 use crate::io::{exr, write_atomic};
 use crate::optics::ConfigError;
@@ -33,23 +33,9 @@ fn default_format() -> ImageFormat {
 }
 
 impl StageConfig for FramesConfig {
-    fn role(&self) -> Role {
-        Role::Sink
-    }
-    fn inputs(&self) -> &[String] {
-        &self.inputs
-    }
-    fn kinds(&self) -> (Kind, Kind) {
-        (Kind::Samples, Kind::Samples)
-    }
+    super::wiring!(sink, Samples);
     fn validate(&self, _key: &str) -> Vec<ConfigError> {
         Vec::new()
-    }
-    fn out_dir(&self) -> Option<&str> {
-        Some(&self.dir)
-    }
-    fn set_out_dir(&mut self, dir: String) {
-        self.dir = dir;
     }
     fn build(&self, ctx: &BuildContext) -> crate::Result<Built> {
         Ok(Built::Sink(Box::new(Frames::new(ctx.out_dir.to_path_buf(), self.format, ctx.counters.clone()))))

@@ -1,6 +1,6 @@
 //! `linearize`: marks frames as linear light through a transfer curve.
 
-use super::{BuildContext, Built, Emit, Kind, Role, StageConfig, StageResult, Transform};
+use super::{BuildContext, Built, Emit, StageConfig, StageResult, Transform};
 use crate::frame::{Frame, Item};
 use crate::optics::transfer::Curve;
 use crate::optics::ConfigError;
@@ -20,15 +20,7 @@ fn default_curve() -> Curve {
 }
 
 impl StageConfig for LinearizeConfig {
-    fn role(&self) -> Role {
-        Role::Transform
-    }
-    fn inputs(&self) -> &[String] {
-        &self.inputs
-    }
-    fn kinds(&self) -> (Kind, Kind) {
-        (Kind::EncodedFrames, Kind::LinearFrames)
-    }
+    super::wiring!(transform, EncodedFrames -> LinearFrames);
     fn validate(&self, _key: &str) -> Vec<ConfigError> {
         Vec::new()
     }

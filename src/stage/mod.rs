@@ -30,6 +30,48 @@ use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 
+/// The wiring part of a [`StageConfig`] impl: its role, its `inputs` field (transforms and
+/// sinks), the kinds it accepts and produces, and for sinks its `dir` field.
+macro_rules! wiring {
+    (source, $out:ident) => {
+        fn role(&self) -> $crate::stage::Role {
+            $crate::stage::Role::Source
+        }
+        fn kinds(&self) -> ($crate::stage::Kind, $crate::stage::Kind) {
+            ($crate::stage::Kind::$out, $crate::stage::Kind::$out)
+        }
+    };
+    (transform, $in:ident -> $out:ident) => {
+        fn role(&self) -> $crate::stage::Role {
+            $crate::stage::Role::Transform
+        }
+        fn inputs(&self) -> &[String] {
+            &self.inputs
+        }
+        fn kinds(&self) -> ($crate::stage::Kind, $crate::stage::Kind) {
+            ($crate::stage::Kind::$in, $crate::stage::Kind::$out)
+        }
+    };
+    (sink, $in:ident) => {
+        fn role(&self) -> $crate::stage::Role {
+            $crate::stage::Role::Sink
+        }
+        fn inputs(&self) -> &[String] {
+            &self.inputs
+        }
+        fn kinds(&self) -> ($crate::stage::Kind, $crate::stage::Kind) {
+            ($crate::stage::Kind::$in, $crate::stage::Kind::$in)
+        }
+        fn out_dir(&self) -> Option<&str> {
+            Some(&self.dir)
+        }
+        fn set_out_dir(&mut self, dir: String) {
+            self.dir = dir;
+        }
+    };
+}
+pub(crate) use wiring;
+
 /// The stage kinds: `type = "..."` in a pipeline file, each a config in its own file of
 /// `src/stage/` that implements [`StageConfig`] beside its runtime. A new kind is one file and
 /// one line here.

@@ -1,7 +1,7 @@
 //! `noise`: the camera's read-out ([`crate::imaging::noise`]): re-encode, add AWGN with sigma
 //! fixed or drawn per window (scaled by the camera's light throughput), quantise to 8 bits.
 
-use super::{BuildContext, Built, Emit, Kind, Role, StageConfig, StageResult, Transform};
+use super::{BuildContext, Built, Emit, StageConfig, StageResult, Transform};
 use crate::frame::{Img, Item};
 use crate::imaging::noise::quantise;
 use crate::optics::config::Checker;
@@ -32,15 +32,7 @@ fn default_sigma() -> Sigma {
 }
 
 impl StageConfig for NoiseConfig {
-    fn role(&self) -> Role {
-        Role::Transform
-    }
-    fn inputs(&self) -> &[String] {
-        &self.inputs
-    }
-    fn kinds(&self) -> (Kind, Kind) {
-        (Kind::Samples, Kind::Samples)
-    }
+    super::wiring!(transform, Samples -> Samples);
     fn validate(&self, key: &str) -> Vec<ConfigError> {
         let mut c = Checker::new(key);
         match self.sigma {

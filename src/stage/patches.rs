@@ -2,7 +2,7 @@
 //! are a pure function of (seed, input, window, frame size), so cutting before the blur (crop
 //! first) and after it pick the same pixels.
 
-use super::{BuildContext, Built, Emit, Kind, Needs, Role, StageConfig, StageError, StageResult, Transform};
+use super::{BuildContext, Built, Emit, Needs, StageConfig, StageError, StageResult, Transform};
 use crate::frame::{Img, Item, Pair};
 use crate::optics::config::Checker;
 use crate::optics::ConfigError;
@@ -46,15 +46,7 @@ fn default_true() -> bool {
 }
 
 impl StageConfig for PatchesConfig {
-    fn role(&self) -> Role {
-        Role::Transform
-    }
-    fn inputs(&self) -> &[String] {
-        &self.inputs
-    }
-    fn kinds(&self) -> (Kind, Kind) {
-        (Kind::Samples, Kind::Samples)
-    }
+    super::wiring!(transform, Samples -> Samples);
     fn validate(&self, key: &str) -> Vec<ConfigError> {
         let mut c = Checker::new(key);
         c.range_usize("size", self.size, 8, 4096);

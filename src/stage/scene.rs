@@ -1,7 +1,7 @@
 //! `scene`: the synthetic moving scenes of the paper's comparison figures ([`crate::scene`]).
 
 use super::input::emit_clip;
-use super::{BuildContext, Built, Counters, Emit, InputList, Kind, Needs, Role, Source, StageConfig};
+use super::{BuildContext, Built, Counters, Emit, InputList, Needs, Source, StageConfig};
 use crate::frame::{Frame, FrameData, Input};
 use crate::optics::config::Checker;
 use crate::optics::ConfigError;
@@ -44,12 +44,7 @@ impl Default for SceneSourceConfig {
 }
 
 impl StageConfig for SceneSourceConfig {
-    fn role(&self) -> Role {
-        Role::Source
-    }
-    fn kinds(&self) -> (Kind, Kind) {
-        (Kind::EncodedFrames, Kind::EncodedFrames)
-    }
+    super::wiring!(source, EncodedFrames);
     fn validate(&self, key: &str) -> Vec<ConfigError> {
         let mut c = Checker::new(key);
         c.range_usize("frames", self.frames, 1, 100_000);

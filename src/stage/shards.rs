@@ -9,7 +9,7 @@
 //! share a folder, one after another or at once, all keep their entries. Each shard's size and
 //! CRC-32 are recorded, and a rerun redoes an input whose shards are missing or damaged.
 
-use super::{BuildContext, Built, Completed, Counters, Kind, Role, Sink, StageConfig};
+use super::{BuildContext, Built, Completed, Counters, Sink, StageConfig};
 use crate::frame::{Img, Input, InputInfo, Item, Pair, Sample};
 use crate::io::{png as png_io, tar, write_atomic};
 use crate::optics::config::Checker;
@@ -45,15 +45,7 @@ fn default_max_samples() -> usize {
 }
 
 impl StageConfig for ShardsConfig {
-    fn role(&self) -> Role {
-        Role::Sink
-    }
-    fn inputs(&self) -> &[String] {
-        &self.inputs
-    }
-    fn kinds(&self) -> (Kind, Kind) {
-        (Kind::Samples, Kind::Samples)
-    }
+    super::wiring!(sink, Samples);
     fn validate(&self, key: &str) -> Vec<ConfigError> {
         let mut c = Checker::new(key);
         c.range_usize("max_samples_per_shard", self.max_samples_per_shard, 1, 10_000_000);
@@ -61,12 +53,6 @@ impl StageConfig for ShardsConfig {
             c.fail("prefix", format!("{:?} must be non-empty, without '/' or '.'", self.prefix));
         }
         c.errors
-    }
-    fn out_dir(&self) -> Option<&str> {
-        Some(&self.dir)
-    }
-    fn set_out_dir(&mut self, dir: String) {
-        self.dir = dir;
     }
     /// What the manifest lists counts as done only when its shards are whole and were made with
     /// these settings; anything else is redone.

@@ -2,7 +2,7 @@
 //! seeded camera shake, a steady pan and independently moving layers.
 
 use super::input::emit_clip;
-use super::{BuildContext, Built, Counters, Emit, InputList, Kind, Needs, Role, Source, StageConfig};
+use super::{BuildContext, Built, Counters, Emit, InputList, Needs, Source, StageConfig};
 use crate::frame::{Frame, FrameData, Input, Item};
 use crate::optics::config::Checker;
 use crate::optics::ConfigError;
@@ -54,12 +54,7 @@ impl Default for StillsConfig {
 }
 
 impl StageConfig for StillsConfig {
-    fn role(&self) -> Role {
-        Role::Source
-    }
-    fn kinds(&self) -> (Kind, Kind) {
-        (Kind::EncodedFrames, Kind::EncodedFrames)
-    }
+    super::wiring!(source, EncodedFrames);
     fn validate(&self, key: &str) -> Vec<ConfigError> {
         let mut c = Checker::new(key);
         c.range_usize("frames", self.frames as usize, 1, 1_000_000);

@@ -1,7 +1,7 @@
 //! `trainer`: trains a network on the generator's stream, no disk in between (the training
 //! itself is [`crate::train`]).
 
-use super::{BuildContext, Built, Kind, Role, Sink, StageConfig};
+use super::{BuildContext, Built, Sink, StageConfig};
 use crate::model::Arch;
 use crate::optics::ConfigError;
 use crate::rng::{hash, hash_str, Rng};
@@ -35,15 +35,7 @@ pub struct TrainerSinkConfig {
 }
 
 impl StageConfig for TrainerSinkConfig {
-    fn role(&self) -> Role {
-        Role::Sink
-    }
-    fn inputs(&self) -> &[String] {
-        &self.inputs
-    }
-    fn kinds(&self) -> (Kind, Kind) {
-        (Kind::Samples, Kind::Samples)
-    }
+    super::wiring!(sink, Samples);
     /// The training file's checks, named by the keys written here (`sinks.X.val_fraction`, not
     /// the training file's `data.val_fraction`).
     fn validate(&self, key: &str) -> Vec<ConfigError> {
@@ -56,12 +48,6 @@ impl StageConfig for TrainerSinkConfig {
                 ConfigError { key: format!("{key}.{k}"), message: e.message }
             })
             .collect()
-    }
-    fn out_dir(&self) -> Option<&str> {
-        Some(&self.dir)
-    }
-    fn set_out_dir(&mut self, dir: String) {
-        self.dir = dir;
     }
     fn report_stem(&self) -> &'static str {
         "generate-report"
