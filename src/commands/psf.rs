@@ -60,16 +60,10 @@ pub fn compute(optics: &OpticsConfig, camera: &CameraConfig, req: &PsfRequest) -
     match req {
         PsfRequest::Psi(psis) => {
             let lens = Lens::new(optics, camera.kind == CameraKind::PhaseCoded);
-            let full: Vec<Psf> = std::thread::scope(|s| {
-                let handles: Vec<_> = psis
-                    .iter()
-                    .map(|&p| {
-                        let lens = &lens;
-                        s.spawn(move || lens.psf(p, lens.support_half(p.abs())))
-                    })
-                    .collect();
-                handles.into_iter().map(|h| h.join().expect("psf worker")).collect()
-            });
+            let full: Vec<Psf> = {
+                use rayon::prelude::*;
+                psis.par_iter().map(|&p| lens.psf(p, lens.support_half(p.abs()))).collect()
+            };
             let half = full.iter().map(|p| p.needed_half(optics.trim_energy)).max().unwrap_or(0);
             Ok(psis
                 .iter()

@@ -8,7 +8,6 @@ use crate::optics::lowrank::{factorise, LowRank};
 use crate::optics::{Camera, SubframeKernel};
 use num_complex::Complex32;
 use std::collections::HashMap;
-use std::sync::atomic::{AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex};
 
 /// The numerical part of imaging a window: kernels, their low-rank factorisation per channel,
@@ -25,6 +24,8 @@ pub struct Blurrer {
     kernels: Arc<Vec<SubframeKernel>>,
     pub margin: usize,
     threads: usize,
+    /// A pool of `threads` workers when asked for a count; else rayon's global pool.
+    pool: Option<Arc<rayon::ThreadPool>>,
     /// Per channel: basis kernels (rendered, `(2 margin + 1)^2`) and coefficients `[k][r]`.
     factors: [LowRank; 3],
     /// Basis spectra per padded size: [c][r].
@@ -57,7 +58,13 @@ impl Blurrer {
     pub fn new(camera: Arc<Camera>, n: usize, threads: usize, rank_tolerance: f64) -> crate::Result<Blurrer> {
         let kernels = camera.window(n)?;
         let margin = kernels.iter().map(|k| k.half_extent()).max().unwrap_or(0);
-        let threads = if threads == 0 { std::thread::available_parallelism().map_or(1, |t| t.get()) } else { threads };
+        let pool = match threads {
+            0 => None,
+            t => Some(Arc::new(
+                rayon::ThreadPoolBuilder::new().num_threads(t).build().map_err(|e| crate::Error::Invalid(format!("blur threads: {e}")))?,
+            )),
+        };
+        let threads = pool.as_ref().map_or_else(rayon::current_num_threads, |p| p.current_num_threads());
         let factors = std::array::from_fn(|c| {
             let rendered: Vec<Vec<f32>> = kernels.iter().map(|k| k.render(c, margin)).collect();
             factorise(&rendered, rank_tolerance)
@@ -68,6 +75,7 @@ impl Blurrer {
             kernels,
             margin,
             threads,
+            pool,
             factors,
             spectra: HashMap::new(),
             convs: HashMap::new(),
@@ -94,22 +102,11 @@ impl Blurrer {
         let factors = &self.factors;
         let convs = &self.convs[&(hp, wp)];
         let tasks: Vec<(usize, usize)> = (0..3).flat_map(|c| (0..factors[c].basis.len()).map(move |r| (c, r))).collect();
-        let results: Vec<Mutex<Vec<Complex32>>> = tasks.iter().map(|_| Mutex::new(Vec::new())).collect();
-        let next = AtomicUsize::new(0);
-        std::thread::scope(|s| {
-            for conv in convs {
-                let (tasks, results, next) = (&tasks, &results, &next);
-                s.spawn(move || {
-                    let mut conv = conv.lock().expect("conv lock");
-                    loop {
-                        let i = next.fetch_add(1, Ordering::Relaxed);
-                        let Some(&(c, r)) = tasks.get(i) else { break };
-                        *results[i].lock().expect("slot") = conv.kernel_spectrum(&factors[c].basis[r]);
-                    }
-                });
-            }
+        let results: Vec<Vec<Complex32>> = install(&self.pool, || {
+            use rayon::prelude::*;
+            tasks.par_iter().map(|&(c, r)| worker(convs).lock().expect("conv lock").kernel_spectrum(&factors[c].basis[r])).collect()
         });
-        let mut it = results.into_iter().map(|r| r.into_inner().expect("slot"));
+        let mut it = results.into_iter();
         let spectra: [Vec<Vec<Complex32>>; 3] =
             std::array::from_fn(|c| (0..factors[c].basis.len()).map(|_| it.next().expect("one per basis")).collect());
         let arc = Arc::new(spectra);
@@ -134,7 +131,8 @@ impl Blurrer {
         let spectra = self.prepare(hp, wp);
         let ranks = self.ranks();
         let ws = self.work.entry((hp, wp)).or_insert_with(|| Blurrer::workspace(ranks, hp, wp));
-        blur_core(&self.factors, &spectra, &self.convs[&(hp, wp)], ws, frames, m, (x0, y0, rw, rh))
+        let (factors, convs) = (&self.factors, &self.convs[&(hp, wp)]);
+        install(&self.pool, || blur_core(factors, &spectra, convs, ws, frames, m, (x0, y0, rw, rh)))
     }
 
     /// Blurs `size x size` patches at each top-left corner: patches are spread over the workers,
@@ -152,34 +150,33 @@ impl Blurrer {
             .or_insert_with(|| (0..threads).map(|_| Mutex::new(Blurrer::workspace(ranks, hp, wp))).collect());
         let convs = &self.convs[&(hp, wp)];
         let factors = &self.factors;
-        let next = AtomicUsize::new(0);
-        let results: Vec<Mutex<Option<[Vec<f32>; 3]>>> = corners.iter().map(|_| Mutex::new(None)).collect();
-        run_workers(convs.len().min(corners.len()).max(1), |w| {
-            let mut ws = pool[w].lock().expect("workspace");
-            let one = std::slice::from_ref(&convs[w]);
-            loop {
-                let i = next.fetch_add(1, Ordering::Relaxed);
-                let Some(&(x, y)) = corners.get(i) else { break };
-                let out = blur_core(factors, &spectra, one, &mut ws, frames, m, (x as isize, y as isize, size, size));
-                *results[i].lock().expect("slot") = Some(out);
-            }
-        });
-        results.into_iter().map(|r| r.into_inner().expect("slot").expect("every patch blurred")).collect()
+        // Whole patches per worker: each blurs its patch alone with its own plan and buffers.
+        install(&self.pool, || {
+            use rayon::prelude::*;
+            corners
+                .par_iter()
+                .map(|&(x, y)| {
+                    let i = rayon::current_thread_index().unwrap_or(0) % pool.len();
+                    let mut ws = pool[i].lock().expect("workspace");
+                    let one = std::slice::from_ref(&convs[i % convs.len()]);
+                    blur_core(factors, &spectra, one, &mut ws, frames, m, (x as isize, y as isize, size, size))
+                })
+                .collect()
+        })
     }
 }
 
-/// Runs `f(worker)` for workers `0..n`: inline for one, on scoped threads otherwise.
-fn run_workers<F: Fn(usize) + Sync>(n: usize, f: F) {
-    if n <= 1 {
-        f(0);
-        return;
+/// Runs `f` in the blurrer's own pool, or in rayon's global one.
+fn install<R: Send>(pool: &Option<Arc<rayon::ThreadPool>>, f: impl FnOnce() -> R + Send) -> R {
+    match pool {
+        Some(p) => p.install(f),
+        None => f(),
     }
-    std::thread::scope(|s| {
-        for w in 0..n {
-            let f = &f;
-            s.spawn(move || f(w));
-        }
-    });
+}
+
+/// The FFT plan of the current worker (one per rayon thread, so never contended).
+fn worker(convs: &[Mutex<FftConv>]) -> &Mutex<FftConv> {
+    &convs[rayon::current_thread_index().unwrap_or(0) % convs.len()]
 }
 
 /// The three phases on one region: combined images, forward FFTs times basis spectra, one
@@ -201,6 +198,8 @@ fn blur_core(
     let (fw, fh) = (frames[0].width, frames[0].height);
     let (ew, eh) = (rw + 2 * m, rh + 2 * m);
     let (ex, ey) = (x0 - m as isize, y0 - m as isize);
+    // Several plans: work spread over rayon's workers; one: all of it here (a patch).
+    let parallel = convs.len() > 1;
     let workers = convs.len();
     // Phase 1: the combined images sum_k a_kr S_k of every channel and rank, by row bands;
     // each job owns its rows of every rank's buffer.
@@ -213,16 +212,11 @@ fn blur_core(
             jobs.push((c, band, per_rank.iter_mut().map(|it| it.next().expect("band")).collect()));
         }
     }
-    let queue = Mutex::new(jobs);
-    run_workers(workers, |_| {
-        let cols: Vec<usize> = (0..ew).map(|x| reflect(ex + x as isize, fw)).collect();
-        let span = if ex >= 0 && ex as usize + ew <= fw { Cols::From(ex as usize) } else { Cols::Index(&cols) };
+    let cols: Vec<usize> = (0..ew).map(|x| reflect(ex + x as isize, fw)).collect();
+    let span = if ex >= 0 && ex as usize + ew <= fw { Cols::From(ex as usize) } else { Cols::Index(&cols) };
+    let phase1 = |(c, band, mut outs): (usize, usize, Vec<&mut [f32]>)| {
         let mut row = vec![0.0f32; ew];
-        loop {
-            // Take the job in its own statement: a guard in a `while let` scrutinee would stay
-            // locked for the whole body and serialise the workers.
-            let job = queue.lock().expect("jobs").pop();
-            let Some((c, band, mut outs)) = job else { break };
+        {
             let f = &factors[c];
             let y_lo = band * band_rows;
             let rows_here = outs[0].len() / wp;
@@ -242,7 +236,13 @@ fn blur_core(
                 }
             }
         }
-    });
+    };
+    if parallel {
+        use rayon::prelude::*;
+        jobs.into_par_iter().for_each(phase1);
+    } else {
+        jobs.into_iter().for_each(phase1);
+    }
     // Phase 2: one forward FFT per (channel, rank), times the basis spectrum, into its slot.
     let mut jobs: Vec<(&[f32], &[Complex32], &mut Vec<Complex32>)> = Vec::new();
     for (c, (bufs, slots)) in ws.combined.iter().zip(ws.slots.iter_mut()).enumerate() {
@@ -250,42 +250,37 @@ fn blur_core(
             jobs.push((img, &spectra[c][r], slot));
         }
     }
-    let queue = Mutex::new(jobs);
-    run_workers(workers, |w| {
-        let mut conv = convs[w].lock().expect("conv lock");
-        loop {
-            let job = queue.lock().expect("jobs").pop();
-            let Some((img, spec, slot)) = job else { break };
-            conv.forward_mul(img, spec, slot);
-        }
-    });
+    let phase2 = |(img, spec, slot): (&[f32], &[Complex32], &mut Vec<Complex32>)| {
+        worker(convs).lock().expect("conv lock").forward_mul(img, spec, slot);
+    };
+    if parallel {
+        use rayon::prelude::*;
+        jobs.into_par_iter().for_each(phase2);
+    } else {
+        jobs.into_iter().for_each(phase2);
+    }
     // Phase 3: sum the ranks in order (deterministic), one inverse per channel.
-    let outs: Vec<Mutex<Vec<f32>>> = (0..3).map(|_| Mutex::new(Vec::new())).collect();
     // The slots are overwritten every window, so the ranks are summed into slot 0 in place.
-    let chans: Vec<Mutex<&mut Vec<Vec<Complex32>>>> = ws.slots.iter_mut().map(Mutex::new).collect();
-    let next = AtomicUsize::new(0);
-    run_workers(workers.min(3), |w| {
-        let mut conv = convs[w].lock().expect("conv lock");
+    let phase3 = |ranks: &mut Vec<Vec<Complex32>>| -> Vec<f32> {
         let mut full = vec![0.0f32; hp * wp];
-        loop {
-            let c = next.fetch_add(1, Ordering::Relaxed);
-            if c >= 3 {
-                break;
-            }
-            let mut ranks = chans[c].lock().expect("channel");
-            let (first, rest) = ranks.split_first_mut().expect("rank 0");
-            for slot in rest.iter() {
-                mul_acc_add(first, slot);
-            }
-            conv.inverse(first, &mut full);
-            let mut o = Vec::with_capacity(rw * rh);
-            for y in 0..rh {
-                o.extend_from_slice(&full[(y + m) * wp + m..(y + m) * wp + m + rw]);
-            }
-            *outs[c].lock().expect("out") = o;
+        let (first, rest) = ranks.split_first_mut().expect("rank 0");
+        for slot in rest.iter() {
+            mul_acc_add(first, slot);
         }
-    });
-    let mut it = outs.into_iter().map(|o| o.into_inner().expect("out"));
+        worker(convs).lock().expect("conv lock").inverse(first, &mut full);
+        let mut o = Vec::with_capacity(rw * rh);
+        for y in 0..rh {
+            o.extend_from_slice(&full[(y + m) * wp + m..(y + m) * wp + m + rw]);
+        }
+        o
+    };
+    let outs: Vec<Vec<f32>> = if parallel {
+        use rayon::prelude::*;
+        ws.slots.par_iter_mut().map(phase3).collect()
+    } else {
+        ws.slots.iter_mut().map(phase3).collect()
+    };
+    let mut it = outs.into_iter();
     std::array::from_fn(|_| it.next().expect("3 channels"))
 }
 

@@ -276,20 +276,10 @@ impl Camera {
         }
         self.stats.lock().unwrap().window_misses += 1;
         let psis = self.psi_schedule(n)?;
-        let mut psfs: Vec<Option<Arc<Psf>>> = vec![None; n];
-        let threads = std::thread::available_parallelism().map_or(1, |t| t.get()).min(n.max(1));
-        std::thread::scope(|s| {
-            for (t, chunk) in psfs.chunks_mut(n.div_ceil(threads).max(1)).enumerate() {
-                let psis = &psis;
-                let base = t * n.div_ceil(threads).max(1);
-                s.spawn(move || {
-                    for (i, slot) in chunk.iter_mut().enumerate() {
-                        *slot = Some(self.psf_for(psis[base + i]));
-                    }
-                });
-            }
-        });
-        let psfs: Vec<Arc<Psf>> = psfs.into_iter().map(|p| p.expect("every psf computed")).collect();
+        let psfs: Vec<Arc<Psf>> = {
+            use rayon::prelude::*;
+            psis.par_iter().map(|&p| self.psf_for(p)).collect()
+        };
         // One common size for the window: the largest that any kernel needs.
         let half = psfs.iter().map(|p| p.needed_half(self.optics.trim_energy)).max().unwrap_or(0);
         let (weights, shifts) = (self.weights(n), self.shifts(n));
