@@ -98,6 +98,59 @@ pub struct GenerateBench {
     pub ffmpeg_decode_fps_median: f64,
     pub own_decode_fps_median: f64,
     pub rows: Vec<GenerateRow>,
+    /// The FFT floor of a full-frame coded window on this machine.
+    pub fft_floor: FftFloor,
+    /// Peak memory of full-frame generation on a 3840x2160 clip (2 windows).
+    pub peak_rss_mb_4k: Option<f64>,
+}
+
+/// What a full-frame coded window must cost at least: its forward transforms (one per channel
+/// and kept rank) and three inverses, each timed alone at the window's padded size.
+#[derive(Debug, serde::Serialize)]
+pub struct FftFloor {
+    pub padded: [usize; 2],
+    pub ranks: [usize; 3],
+    pub transforms_per_window: usize,
+    /// Median time of one forward transform with its product (one thread).
+    pub ms_per_transform: f64,
+    /// Sub-frames per second if the transforms were all there was, on every core.
+    pub subframes_per_s: f64,
+    pub ratio_to_ffmpeg_decode: f64,
+}
+
+/// Times the transforms of one full-frame window of the default coded camera.
+fn fft_floor(w: usize, h: usize, window: usize, repeats: usize, ff_decode: f64) -> crate::Result<FftFloor> {
+    use crate::optics::fft::{fast_size, FftConv};
+    let cam = std::sync::Arc::new(crate::optics::Camera::new(
+        &Default::default(),
+        &crate::optics::CameraConfig::new(crate::optics::CameraKind::PhaseCoded),
+    ));
+    let b = crate::imaging::blur::Blurrer::new(cam, window, 1, 1e-3)?;
+    let (hp, wp) = (fast_size(h + 2 * b.margin), fast_size(w + 2 * b.margin));
+    let ranks = b.ranks();
+    let mut conv = FftConv::new(hp, wp);
+    let img = vec![0.5f32; hp * wp];
+    let spec = conv.kernel_spectrum(&vec![0.0f32; (2 * b.margin + 1).pow(2)]);
+    let mut out = vec![num_complex::Complex32::new(0.0, 0.0); spec.len()];
+    let mut times: Vec<f64> = (0..repeats.max(3))
+        .map(|_| {
+            let t = Instant::now();
+            conv.forward_mul(&img, &spec, &mut out);
+            t.elapsed().as_secs_f64()
+        })
+        .collect();
+    let t1 = median(&mut times);
+    let transforms = ranks.iter().sum::<usize>() + 3;
+    let threads = rayon::current_num_threads() as f64;
+    let sps = window as f64 * threads / (transforms as f64 * t1);
+    Ok(FftFloor {
+        padded: [wp, hp],
+        ranks,
+        transforms_per_window: transforms,
+        ms_per_transform: t1 * 1e3,
+        subframes_per_s: sps,
+        ratio_to_ffmpeg_decode: sps / ff_decode,
+    })
 }
 
 #[cfg(feature = "ffmpeg")]
@@ -159,7 +212,7 @@ fn bench_plan(mode: &str, clip: &std::path::Path, out: &std::path::Path) -> crat
         format!("sources.video.paths=[{:?}]", clip.display().to_string()),
         format!("sinks.shards.dir={:?}", out.display().to_string()),
     ];
-    if mode == "full frame" {
+    if mode.starts_with("full frame") {
         // Whole frames, noise, into a blackhole: the cost of generation without PNG encoding.
         sets.extend([
             "transforms.patches.type=\"noise\"".into(),
@@ -168,8 +221,11 @@ fn bench_plan(mode: &str, clip: &std::path::Path, out: &std::path::Path) -> crat
         ]);
         sets.extend(["sinks.shards.type=\"blackhole\"".into()]);
     }
+    if mode.contains("conventional") {
+        sets.push("transforms.blur.camera.type=\"conventional\"".into());
+    }
     let mut table = crate::config::parse(super::generate::GENERATE_TOML, "pipelines/generate.toml (embedded)", &[])?;
-    if mode == "full frame" {
+    if mode.starts_with("full frame") {
         // Drop the patch keys that a noise stage does not have.
         if let Some(t) = table.get_mut("transforms").and_then(|t| t.get_mut("patches")).and_then(|p| p.as_table_mut()) {
             t.retain(|k, _| k == "inputs");
@@ -207,7 +263,9 @@ pub fn generate(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> c
     let (ff_med, own_med) = (median(&mut ff), median(&mut own));
     eprintln!("bench: decode only: ffmpeg CLI {ff_med:.0} frames/s, pipeline decoder (with RGB conversion) {own_med:.0} frames/s");
     let mut rows = Vec::new();
-    for (mode, path) in [("full frame", &clip), ("patches", &clip), ("patches, clip twice as long", &long)] {
+    for (mode, path) in
+        [("full frame", &clip), ("full frame, conventional", &clip), ("patches", &clip), ("patches, clip twice as long", &long)]
+    {
         let mut rates = Vec::new();
         let mut peak = None;
         let mut n_frames = 0;
@@ -244,6 +302,27 @@ pub fn generate(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> c
             peak_rss_mb: peak,
         });
     }
+    let floor = fft_floor(w, h, 9, repeats.max(5), ff_med)?;
+    eprintln!(
+        "bench: FFT floor of a coded window at {}x{} padded: {} transforms (ranks {:?} + 3 inverses) x {:.2} ms = {:.0} sub-frames/s on {} threads ({:.2}x ffmpeg decode-only)",
+        floor.padded[0],
+        floor.padded[1],
+        floor.transforms_per_window,
+        floor.ranks,
+        floor.ms_per_transform,
+        floor.subframes_per_s,
+        rayon::current_num_threads(),
+        floor.ratio_to_ffmpeg_decode
+    );
+    // Peak memory at 4K: two windows of full frames.
+    let uhd = dir.join("bench-3840x2160.mp4");
+    make_clip(&uhd, 3840, 2160, fps, 18.0 / fps as f64)?;
+    let out = dir.join("out-4k");
+    let plan = bench_plan("full frame", &uhd, &out)?;
+    let reset = reset_peak_rss();
+    crate::graph::run(&plan, &crate::graph::RunOptions::default())?;
+    let peak_4k = if reset { peak_rss_kb().map(|k| k as f64 / 1024.0) } else { None };
+    eprintln!("bench: full frame at 3840x2160: peak RSS {}", peak_4k.map_or("n/a".into(), |p| format!("{p:.0} MB")));
     let _ = std::fs::remove_dir_all(&dir);
     Ok(GenerateBench {
         clip: format!("testsrc2 {w}x{h} {fps} fps H.264 (x264 veryfast), {seconds} s"),
@@ -256,6 +335,8 @@ pub fn generate(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> c
         ffmpeg_decode_fps_median: ff_med,
         own_decode_fps_median: own_med,
         rows,
+        fft_floor: floor,
+        peak_rss_mb_4k: peak_4k,
     })
 }
 
