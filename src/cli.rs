@@ -31,7 +31,7 @@ pub enum Command {
     Psf(crate::commands::psf::PsfArgs),
     /// Make coded-blur training data from videos with the default generate pipeline.
     #[command(
-        after_help = "Examples:\n  pipeline generate clip.mp4 -o out/                       patches in WebDataset shards\n  pipeline generate clips/ -o out/ --set transforms.blur.camera.type=conventional\n  pipeline generate a.mp4 b.mkv -o out/ --shard-index 0 --shard-count 2\n\nThe default pipeline is pipelines/generate.toml (embedded); see it for every key."
+        after_help = "Examples:\n  pipeline generate clip.mp4 -o out/                       patches in WebDataset shards\n  pipeline generate clips/ -o out/ --set transforms.blur.camera.type=conventional\n  pipeline generate a.mp4 b.mkv -o out/ --shard-index 0 --shard-count 2\n  ffmpeg -i in.mov -f nut - | pipeline generate - -o out/   a stream on standard input\n\nThe default pipeline is pipelines/generate.toml (embedded); see it for every key."
     )]
     Generate(crate::commands::generate::GenerateArgs),
     /// Run a pipeline file.

@@ -100,6 +100,11 @@ pub fn list_inputs(plan: &Plan) -> Result<Vec<(Arc<Input>, Option<PathBuf>)>> {
         .map(|(i, p)| {
             use std::os::unix::ffi::OsStrExt;
             let (path, identity) = match &p {
+                // Standard input: a stream of its own each time (never skipped as done).
+                Some(p) if p.as_os_str() == "-" || p.as_os_str() == "pipe:0" => {
+                    let t = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_nanos());
+                    ("stdin".to_string(), format!("stdin {} {t}", std::process::id()).into_bytes())
+                }
                 Some(p) => {
                     let canon = std::fs::canonicalize(p).unwrap_or_else(|_| p.clone());
                     (p.display().to_string(), canon.as_os_str().as_bytes().to_vec())

@@ -26,7 +26,8 @@ pub struct RunCommon {
 
 #[derive(Args, Debug)]
 pub struct GenerateArgs {
-    /// Video files, folders of videos, or file-name globs; default: the pipeline's paths.
+    /// Video files, folders of videos, file-name globs, or - for a stream on standard input
+    /// (`ffmpeg ... -f nut - | pipeline generate -`); default: the pipeline's paths.
     pub videos: Vec<String>,
     /// Output folder (shards, manifest.json, report.json).
     #[arg(short, long)]

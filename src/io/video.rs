@@ -61,13 +61,16 @@ fn fmt_err(e: ff::Error) -> String {
 }
 
 impl VideoReader {
-    /// Opens `path` and its best video stream.
+    /// Opens `path` (or standard input for `-`) and its best video stream.
     ///
     /// # Errors
     /// A message without the path (the caller names the file): missing, not a video, no decoder.
     pub fn open(path: &Path) -> Result<VideoReader, String> {
         init();
-        if !path.exists() {
+        // `-` or `pipe:0`: a stream on standard input (`ffmpeg ... -f nut - | pipeline generate -`).
+        let stdin = path.as_os_str() == "-" || path.as_os_str() == "pipe:0";
+        let path = if stdin { Path::new("pipe:0") } else { path };
+        if !stdin && !path.exists() {
             return Err("no such file".into());
         }
         // FFmpeg takes UTF-8 names only (ffmpeg-next would panic on any other).

@@ -234,3 +234,27 @@ fn two_tasks_give_the_same_samples_as_one_run_and_reruns_skip_finished_inputs() 
     ok(&o);
     assert_eq!(files(&slurm).iter().filter(|f| f.ends_with(".tar")).cloned().collect::<Vec<_>>(), vec![b_shard]);
 }
+
+#[test]
+fn a_video_on_standard_input_is_read_with_dash() {
+    // `ffmpeg ... -f nut - | pipeline generate - -o out`: each piped stream is an input of its
+    // own (a second one adds shards, it is not skipped as done).
+    let d = scratch("gen_stdin");
+    for round in 1..=2 {
+        let mut child = bin()
+            .args(["generate", "-", "-o", d.to_str().unwrap(), "--progress", "never", "--set", SHORT])
+            .stdin(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::piped())
+            .spawn()
+            .unwrap();
+        let bytes = std::fs::read(FIXTURE).unwrap();
+        let mut stdin = child.stdin.take().unwrap();
+        std::thread::spawn(move || std::io::Write::write_all(&mut stdin, &bytes));
+        ok(&child.wait_with_output().unwrap());
+        let tars: Vec<String> = files(&d).into_iter().filter(|f| f.ends_with(".tar")).collect();
+        assert_eq!(tars.len(), round, "{tars:?}");
+        assert!(tars.iter().all(|t| t.starts_with("train-stdin_")), "{tars:?}");
+    }
+    let m: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(m["samples"], 2 * 3 * 8, "27 frames: 3 windows of 9, 8 patches each, twice");
+}
