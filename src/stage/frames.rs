@@ -1,4 +1,6 @@
-//! `frames`: full-size pairs in the GoPro folder layout, 8-bit PNG or linear OpenEXR.
+//! `frames`: full-size (or patch) pairs as image folders, 8-bit PNG or linear OpenEXR, in the
+//! layouts deblurring loaders read: per-clip folders, DeepDeblur's GoPro layout with a train/test
+//! split by source video, or BasicSR's paired `lq/` + `gt/` folders with a meta-info file.
 
 use super::shards::{default_dir, png_bytes};
 use super::{BuildContext, Built, Counters, Sink, StageConfig};
@@ -26,19 +28,49 @@ pub struct FramesConfig {
     /// png: 8-bit encoded; exr: linear light, float.
     #[serde(default = "default_format")]
     pub format: ImageFormat,
+    /// folders | gopro | basicsr.
+    #[serde(default)]
+    pub layout: Layout,
+    /// Share of source videos written to `test/` (gopro and basicsr layouts), by video, never by
+    /// frame; seeded.
+    #[serde(default)]
+    pub test_fraction: f64,
 }
 
 fn default_format() -> ImageFormat {
     ImageFormat::Png
 }
 
+/// How the pairs are laid out under `dir`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Layout {
+    /// `{clip}/blur_gamma/NNNNNN.png` and `{clip}/sharp/` (EXR: `blur_linear/`, `sharp_linear/`).
+    #[default]
+    Folders,
+    /// DeepDeblur's GoPro layout: `{train|test}/{clip}/{blur,blur_gamma,sharp}/NNNNNN.png`.
+    /// `blur` and `blur_gamma` hold the same image: the camera's blur computed in linear light
+    /// and re-encoded (what GoPro calls `blur_gamma`), so a loader reading either finds pairs.
+    Gopro,
+    /// BasicSR's paired folders: `{train|test}/lq/{clip}_NNNNNN.png`, `gt/` with the same names,
+    /// and `{train|test}/meta_info.txt` (one `name (h,w,3)` per pair).
+    Basicsr,
+}
+
 impl StageConfig for FramesConfig {
     super::wiring!(sink, Samples);
-    fn validate(&self, _key: &str) -> Vec<ConfigError> {
-        Vec::new()
+    fn validate(&self, key: &str) -> Vec<ConfigError> {
+        let mut c = crate::optics::config::Checker::new(key);
+        c.range("test_fraction", self.test_fraction, 0.0, 1.0);
+        if self.layout != Layout::Folders && self.format == ImageFormat::Exr {
+            c.fail("format", "the gopro and basicsr layouts are 8-bit PNG");
+        }
+        c.errors
     }
     fn build(&self, ctx: &BuildContext) -> crate::Result<Built> {
-        Ok(Built::Sink(Box::new(Frames::new(ctx.out_dir.to_path_buf(), self.format, ctx.counters.clone()))))
+        let mut f = Frames::new(ctx.out_dir.to_path_buf(), self.format, ctx.counters.clone());
+        (f.layout, f.test_fraction, f.seed) = (self.layout, self.test_fraction, ctx.seed);
+        Ok(Built::Sink(Box::new(f)))
     }
 }
 
@@ -53,11 +85,38 @@ pub struct Frames {
     samples: usize,
     /// Samples of the input being written.
     pending: usize,
+    pub layout: Layout,
+    pub test_fraction: f64,
+    pub seed: u64,
+    /// Meta-info lines of the input being written (basicsr): (split, line).
+    meta: Vec<(&'static str, String)>,
 }
 
 impl Frames {
     pub fn new(dir: PathBuf, format: ImageFormat, counters: Arc<Counters>) -> Frames {
-        Frames { dir, format, counters, failed: Vec::new(), written: Vec::new(), samples: 0, pending: 0 }
+        Frames {
+            dir,
+            format,
+            counters,
+            failed: Vec::new(),
+            written: Vec::new(),
+            samples: 0,
+            pending: 0,
+            layout: Layout::Folders,
+            test_fraction: 0.0,
+            seed: 0,
+            meta: Vec::new(),
+        }
+    }
+
+    /// `train` or `test` for a source video.
+    fn split(&self, s: &Sample) -> &'static str {
+        use crate::rng::{hash, hash_str, unit};
+        if unit(hash(&[self.seed, s.input.id, hash_str("test-split")])) < self.test_fraction {
+            "test"
+        } else {
+            "train"
+        }
     }
 
     fn write(&mut self, s: &Sample, p: &Pair) -> crate::Result<()> {
@@ -65,15 +124,36 @@ impl Frames {
             Some(i) => format!("{:06}_{:03}", s.window, i),
             None => format!("{:06}", s.window),
         };
-        let base = self.dir.join(&s.input.key);
-        let (lq_dir, gt_dir, ext) = match self.format {
-            ImageFormat::Png => ("blur_gamma", "sharp", "png"),
-            ImageFormat::Exr => ("blur_linear", "sharp_linear", "exr"),
+        let ext = match self.format {
+            ImageFormat::Png => "png",
+            ImageFormat::Exr => "exr",
         };
-        for (sub, img) in [(lq_dir, &p.lq), (gt_dir, &p.gt)] {
-            let d = base.join(sub);
+        // (folder, file name, image) of every file this pair is written to.
+        let files: Vec<(PathBuf, String, &Img)> = match self.layout {
+            Layout::Folders => {
+                let base = self.dir.join(&s.input.key);
+                let (lq_dir, gt_dir) = if ext == "png" { ("blur_gamma", "sharp") } else { ("blur_linear", "sharp_linear") };
+                vec![(base.join(lq_dir), format!("{name}.{ext}"), &p.lq), (base.join(gt_dir), format!("{name}.{ext}"), &p.gt)]
+            }
+            Layout::Gopro => {
+                let base = self.dir.join(self.split(s)).join(&s.input.key);
+                ["blur", "blur_gamma"]
+                    .iter()
+                    .map(|d| (base.join(d), format!("{name}.png"), &p.lq))
+                    .chain(std::iter::once((base.join("sharp"), format!("{name}.png"), &p.gt)))
+                    .collect()
+            }
+            Layout::Basicsr => {
+                let split = self.split(s);
+                let base = self.dir.join(split);
+                let file = format!("{}_{name}.png", s.input.key);
+                self.meta.push((split, format!("{file} ({},{},3)", p.h, p.w)));
+                vec![(base.join("lq"), file.clone(), &p.lq), (base.join("gt"), file, &p.gt)]
+            }
+        };
+        for (d, file, img) in files {
             std::fs::create_dir_all(&d).map_err(|e| crate::Error::Io { path: d.clone(), cause: e })?;
-            let path = d.join(format!("{name}.{ext}"));
+            let path = d.join(file);
             match self.format {
                 ImageFormat::Png => {
                     let bytes = png_bytes(img, p.w, p.h, s.curve);
@@ -93,11 +173,34 @@ impl Frames {
     }
 }
 
+impl Frames {
+    /// Appends the finished input's lines to `{split}/meta_info.txt`, one write per split (runs
+    /// sharing the folder append whole lines).
+    fn append_meta(&mut self) -> crate::Result<()> {
+        for split in ["train", "test"] {
+            let lines: String = self.meta.iter().filter(|(s, _)| *s == split).map(|(_, l)| format!("{l}\n")).collect();
+            if lines.is_empty() {
+                continue;
+            }
+            let path = self.dir.join(split).join("meta_info.txt");
+            let mut f = std::fs::OpenOptions::new()
+                .create(true)
+                .append(true)
+                .open(&path)
+                .map_err(|e| crate::Error::Io { path: path.clone(), cause: e })?;
+            std::io::Write::write_all(&mut f, lines.as_bytes()).map_err(|e| crate::Error::Io { path: path.clone(), cause: e })?;
+        }
+        self.meta.clear();
+        Ok(())
+    }
+}
+
 impl Sink for Frames {
     fn consume(&mut self, item: Item) -> crate::Result<()> {
         match item {
             Item::Begin(..) => {
                 self.written.clear();
+                self.meta.clear();
                 self.pending = 0;
             }
             Item::Sample(s) => {
@@ -108,6 +211,7 @@ impl Sink for Frames {
                 Counters::add(&self.counters.samples, s.pairs.len() as u64);
             }
             Item::End(_, Ok(())) => {
+                self.append_meta()?;
                 self.written.clear();
                 self.samples += self.pending;
                 Counters::add(&self.counters.samples_kept, self.pending as u64);

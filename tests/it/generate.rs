@@ -258,3 +258,61 @@ fn a_video_on_standard_input_is_read_with_dash() {
     let m: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join("manifest.json")).unwrap()).unwrap();
     assert_eq!(m["samples"], 2 * 3 * 8, "27 frames: 3 windows of 9, 8 patches each, twice");
 }
+
+#[test]
+fn gopro_and_basicsr_layouts_split_by_video_and_pair_by_name() {
+    let ins: Vec<std::path::PathBuf> = ["a", "b", "c", "d"]
+        .iter()
+        .enumerate()
+        .map(|(k, n)| {
+            let ss = format!("{}", k as f64 * 0.3);
+            clip(&format!("layout-{n}.mp4"), &["-ss", &ss, "-i", FIXTURE, "-frames:v", "18", "-c:v", "libx264", "-preset", "ultrafast"])
+        })
+        .collect();
+    let inputs: Vec<&str> = ins.iter().map(|p| p.to_str().unwrap()).collect();
+    let cfg = concat!(env!("CARGO_MANIFEST_DIR"), "/pipelines/frames.toml");
+    let paths = format!("sources.video.paths={:?}", inputs);
+    let run_layout = |layout: &str| {
+        let d = scratch(&format!("gen_layout_{layout}"));
+        let o = bin()
+            .args(["run", cfg, "-o", d.to_str().unwrap(), "--progress", "never", "--set", &paths])
+            .args(["--set", &format!("sinks.frames.layout=\"{layout}\""), "--set", "sinks.frames.test_fraction=0.5"])
+            .output()
+            .unwrap();
+        ok(&o);
+        d
+    };
+    // GoPro: {train,test}/<clip>/{blur,blur_gamma,sharp}/NNNNNN.png, each clip in one split.
+    let g = run_layout("gopro");
+    let mut clips = Vec::new();
+    for split in ["train", "test"] {
+        for c in files(&g.join(split)) {
+            assert_eq!(files(&g.join(split).join(&c)), vec!["blur", "blur_gamma", "sharp"]);
+            let names = files(&g.join(split).join(&c).join("sharp"));
+            assert_eq!(names, vec!["000000.png", "000001.png"], "18 frames: two windows of 9");
+            for n in &names {
+                let read = |sub: &str| std::fs::read(g.join(split).join(&c).join(sub).join(n)).unwrap();
+                assert!(read("blur") == read("blur_gamma"));
+            }
+            clips.push(c);
+        }
+    }
+    clips.sort();
+    clips.dedup();
+    assert_eq!(clips.len(), 4, "every clip in exactly one split: {clips:?}");
+    // (Which clips go to test depends on their paths' hash, so on the machine: not asserted.)
+    // BasicSR: lq/ and gt/ with the same names, listed in meta_info.txt.
+    let b = run_layout("basicsr");
+    let mut total = 0;
+    for split in files(&b).into_iter().filter(|f| f == "train" || f == "test") {
+        let (lq, gt) = (files(&b.join(&split).join("lq")), files(&b.join(&split).join("gt")));
+        assert_eq!(lq, gt);
+        let meta = std::fs::read_to_string(b.join(&split).join("meta_info.txt")).unwrap();
+        let mut listed: Vec<String> = meta.lines().map(|l| l.split(' ').next().unwrap().to_string()).collect();
+        listed.sort();
+        assert_eq!(listed, lq);
+        assert!(meta.lines().all(|l| l.ends_with("(240,320,3)")), "{meta}");
+        total += lq.len();
+    }
+    assert_eq!(total, 4 * 2);
+}
