@@ -62,6 +62,11 @@ pub fn save_checkpoint(dir: &Path, model: &Net, optim_bytes: Vec<u8>, arch: &Arc
         })
         .overwrite(true);
     model.save_into(&mut store).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+    // burn writes the file owner-only (0600); a checkpoint is meant to be shared like any output.
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let _ = std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o644));
+    }
     let oname = format!("optim-{step:07}.bin");
     write_atomic(&dir.join(&oname), |w| w.write_all(&optim_bytes))?;
     let latest = Latest { step, model: name, optimizer: oname };

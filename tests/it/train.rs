@@ -123,6 +123,11 @@ fn save_then_load_gives_identical_outputs_and_resume_matches_an_uninterrupted_ru
     for (p, q) in ra.loss.iter().zip(&rb.loss) {
         assert!((p.loss - q.loss).abs() <= 1e-6 * p.loss.abs(), "step {}: {} vs {}", p.step, p.loss, q.loss);
     }
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let mode = std::fs::metadata(b.join("model-0000006.safetensors")).unwrap().permissions().mode() & 0o777;
+        assert_eq!(mode & 0o044, 0o044, "checkpoints readable by group and others: {mode:o}");
+    }
     let csv = std::fs::read_to_string(b.join("history.csv")).unwrap();
     assert_eq!(csv.lines().count(), 7, "header and six steps:\n{csv}");
     assert!(csv.starts_with("step,lr,loss,"));
