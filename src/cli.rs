@@ -65,6 +65,13 @@ pub enum Command {
     Figure(crate::commands::figure::FigureArgs),
     /// Check pipeline files and report every error, each naming its key.
     Validate(crate::commands::generate::ValidateArgs),
+    /// Write a trained model with PyTorch state_dict names (benches/torch_models.py's UNet and
+    /// Shallow), for fine-tuning or deployment in PyTorch.
+    #[cfg(feature = "train")]
+    #[command(
+        after_help = "Examples:\n  pipeline export models/unet16-coded -o unet16-coded.pt.safetensors\n\nIn Python: model = UNet(16); model.load_state_dict(safetensors.torch.load_file(\"unet16-coded.pt.safetensors\"))"
+    )]
+    Export(crate::commands::export::ExportArgs),
     /// Measure speed (medians of repeats); not part of the tests.
     #[command(subcommand)]
     Bench(crate::commands::bench::BenchCommand),
@@ -91,6 +98,8 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Eval(a) => commands::eval::command(a),
         #[cfg(feature = "train")]
         Command::Figure(a) => commands::figure::command(a),
+        #[cfg(feature = "train")]
+        Command::Export(a) => commands::export::command(a),
         Command::Bench(c) => commands::bench::command(c),
     }
 }

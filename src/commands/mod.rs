@@ -7,6 +7,8 @@ pub mod deblur;
 #[cfg(all(feature = "train", feature = "ffmpeg"))]
 pub mod eval;
 #[cfg(feature = "train")]
+pub mod export;
+#[cfg(feature = "train")]
 pub mod figure;
 pub mod generate;
 pub mod psf;
