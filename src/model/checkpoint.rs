@@ -98,7 +98,8 @@ pub fn load_model(path: &Path, device: &Device) -> Result<(Net, Arch)> {
 /// # Errors
 /// As [`load_model`].
 pub fn load_model_bytes(bytes: &[u8], name: &str, device: &Device) -> Result<(Net, Arch)> {
-    let bytes = bytes.to_vec();
+    // A model with PyTorch names (exported, or fine-tuned in PyTorch) is renamed first.
+    let bytes = crate::model::torch::from_torch(bytes, name)?.unwrap_or_else(|| bytes.to_vec());
     let path = Path::new(name);
     let arch = read_arch(&bytes).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
     let mut net = Net::new(arch, device);

@@ -15,6 +15,7 @@
 pub mod checkpoint;
 pub mod fast;
 pub mod infer;
+pub mod torch;
 
 use burn::module::Module;
 use burn::nn::conv::{Conv2d, Conv2dConfig, ConvTranspose2d, ConvTranspose2dConfig};

@@ -1,0 +1,270 @@
+//! PyTorch names for our networks: `state_dict` keys of `benches/torch_models.py`'s `UNet(base)`
+//! and `Shallow(width)`, both ways. `pipeline export` writes them; `--model` reads them back (a
+//! model fine-tuned in PyTorch and saved with `safetensors.torch.save_file`).
+
+use crate::{Error, Result};
+
+/// The PyTorch name of a burn parameter of our networks: `Unet.down1.conv.a.conv.weight` ->
+/// `downs.0.a.0.weight`, `...bn.gamma` -> `...1.weight`, `Unet.up2.up.weight` -> `ups.1.up.weight`.
+pub fn torch_name(burn: &str) -> Option<String> {
+    let (net, rest) = burn.split_once('.')?;
+    let parts: Vec<&str> = rest.split('.').collect();
+    let mut out: Vec<String> = Vec::new();
+    let mut i = 0;
+    while i < parts.len() {
+        let p = parts[i];
+        let next = parts.get(i + 1).copied();
+        match (net, p) {
+            ("Unet", d) if d.starts_with("down") => {
+                out.push(format!("downs.{}", d[4..].parse::<usize>().ok()?.checked_sub(1)?));
+                // `downK.conv.X`: torch's ModuleList holds the DoubleConv itself.
+                if next == Some("conv") {
+                    i += 1;
+                }
+            }
+            ("Unet", u) if u.starts_with("up") && u.len() > 2 && u[2..].chars().all(|c| c.is_ascii_digit()) => {
+                out.push(format!("ups.{}", u[2..].parse::<usize>().ok()?.checked_sub(1)?));
+            }
+            (_, "conv")
+                if matches!(next, Some("weight") | Some("bias"))
+                    && out.last().is_some_and(|l| l == "a" || l == "b" || l.parse::<usize>().is_ok()) =>
+            {
+                out.push("0".into())
+            }
+            (_, "bn") => out.push("1".into()),
+            (_, "gamma") => out.push("weight".into()),
+            (_, "beta") => out.push("bias".into()),
+            (_, p) => out.push(p.into()),
+        }
+        i += 1;
+    }
+    Some(out.join("."))
+}
+
+/// One tensor of a safetensors file.
+pub(crate) struct Entry {
+    pub name: String,
+    pub dtype: String,
+    pub shape: Vec<usize>,
+    pub data: Vec<u8>,
+}
+
+pub(crate) fn read_safetensors(bytes: &[u8], name: &str) -> Result<(Vec<Entry>, serde_json::Value)> {
+    let bad = |m: &str| Error::Invalid(format!("{name}: {m}"));
+    let n = u64::from_le_bytes(bytes.get(..8).ok_or_else(|| bad("truncated"))?.try_into().expect("8 bytes")) as usize;
+    let header: serde_json::Map<String, serde_json::Value> =
+        serde_json::from_slice(bytes.get(8..8 + n).ok_or_else(|| bad("truncated header"))?)
+            .map_err(|e| bad(&format!("bad header ({e})")))?;
+    let data = &bytes[8 + n..];
+    let mut meta = serde_json::Value::Null;
+    let mut out = Vec::new();
+    for (k, v) in header {
+        if k == "__metadata__" {
+            meta = v;
+            continue;
+        }
+        let off = &v["data_offsets"];
+        let (a, b) = (off[0].as_u64().unwrap_or(0) as usize, off[1].as_u64().unwrap_or(0) as usize);
+        out.push(Entry {
+            name: k,
+            dtype: v["dtype"].as_str().unwrap_or("").into(),
+            shape: v["shape"].as_array().map(|s| s.iter().filter_map(|d| d.as_u64().map(|d| d as usize)).collect()).unwrap_or_default(),
+            data: data.get(a..b).ok_or_else(|| bad("tensor data out of range"))?.to_vec(),
+        });
+    }
+    Ok((out, meta))
+}
+
+fn safetensors_bytes(entries: &[Entry], meta: &serde_json::Map<String, serde_json::Value>) -> Vec<u8> {
+    let mut header = serde_json::Map::new();
+    header.insert("__metadata__".into(), serde_json::Value::Object(meta.clone()));
+    let mut off = 0usize;
+    for e in entries {
+        header.insert(e.name.clone(), serde_json::json!({ "dtype": e.dtype, "shape": e.shape, "data_offsets": [off, off + e.data.len()] }));
+        off += e.data.len();
+    }
+    let mut h = serde_json::to_vec(&header).expect("json");
+    while h.len() % 8 != 0 {
+        h.push(b' ');
+    }
+    let mut out = (h.len() as u64).to_le_bytes().to_vec();
+    out.extend_from_slice(&h);
+    entries.iter().for_each(|e| out.extend_from_slice(&e.data));
+    out
+}
+
+/// Converts a model file's bytes to PyTorch names; adds each BatchNorm's `num_batches_tracked`.
+///
+/// # Errors
+/// Not a model of ours (a name without a PyTorch counterpart), not safetensors.
+pub fn to_torch(bytes: &[u8], name: &str) -> Result<(Vec<(String, Vec<usize>, String)>, Vec<u8>)> {
+    let (entries, meta) = read_safetensors(bytes, name)?;
+    let mut out = Vec::new();
+    for e in entries {
+        let t = torch_name(&e.name).ok_or_else(|| Error::Invalid(format!("{name}: {} has no PyTorch name", e.name)))?;
+        if t.ends_with(".running_var") {
+            let nbt = t.trim_end_matches("running_var").to_string() + "num_batches_tracked";
+            out.push(Entry { name: nbt, dtype: "I64".into(), shape: vec![], data: 0i64.to_le_bytes().to_vec() });
+        }
+        out.push(Entry { name: t, ..e });
+    }
+    out.sort_by(|a, b| a.name.cmp(&b.name));
+    let mut m = serde_json::Map::new();
+    m.insert("format".into(), "pt".into());
+    if let Some(a) = meta.get("arch") {
+        m.insert("arch".into(), a.clone());
+    }
+    m.insert("exported_by".into(), format!("pipeline {}", env!("CARGO_PKG_VERSION")).into());
+    let written = safetensors_bytes(&out, &m);
+    Ok((out.into_iter().map(|e| (e.name, e.shape, e.dtype)).collect(), written))
+}
+
+/// The burn name of a PyTorch `state_dict` key of our networks (the inverse of [`torch_name`]);
+/// `None` for keys burn does not keep (`num_batches_tracked`) or that are not ours.
+pub fn burn_name(torch: &str) -> Option<String> {
+    let parts: Vec<&str> = torch.split('.').collect();
+    let leaf = |p: &str, in_bn: bool| -> String {
+        match (p, in_bn) {
+            ("weight", true) => "gamma".into(),
+            ("bias", true) => "beta".into(),
+            (p, _) => p.into(),
+        }
+    };
+    // A conv+BN pair `X.0.weight` / `X.1.{weight,bias,running_*}` under a double conv (a or b) or a block.
+    let pair = |rest: &[&str]| -> Option<String> {
+        match rest {
+            ["0", p] => Some(format!("conv.{p}")),
+            ["1", "num_batches_tracked"] => None,
+            ["1", p] => Some(format!("bn.{}", leaf(p, true))),
+            _ => None,
+        }
+    };
+    let double = |rest: &[&str]| -> Option<String> {
+        match rest {
+            [ab @ ("a" | "b"), more @ ..] => Some(format!("{ab}.{}", pair(more)?)),
+            _ => None,
+        }
+    };
+    match parts.as_slice() {
+        ["inc", rest @ ..] => Some(format!("Unet.inc.{}", double(rest)?)),
+        ["downs", i, rest @ ..] => Some(format!("Unet.down{}.conv.{}", i.parse::<usize>().ok()? + 1, double(rest)?)),
+        ["ups", i, "up", p] => Some(format!("Unet.up{}.up.{p}", i.parse::<usize>().ok()? + 1)),
+        ["ups", i, "conv", rest @ ..] => Some(format!("Unet.up{}.conv.{}", i.parse::<usize>().ok()? + 1, double(rest)?)),
+        ["outc", p] => Some(format!("Unet.outc.{p}")),
+        ["blocks", i, rest @ ..] => Some(format!("Shallow.blocks.{i}.{}", pair(rest)?)),
+        ["out", p] => Some(format!("Shallow.out.{p}")),
+        _ => None,
+    }
+}
+
+/// A model file written with PyTorch names (by `pipeline export`, or fine-tuned in PyTorch and
+/// saved with `safetensors.torch.save_file`) turned back into the burn-named bytes `pipeline`
+/// loads; `None` when the file already has burn names. The architecture comes from the
+/// metadata, or from the first convolution's shape.
+///
+/// # Errors
+/// A key that is not one of our networks', or no way to tell the architecture.
+pub fn from_torch(bytes: &[u8], name: &str) -> Result<Option<Vec<u8>>> {
+    // Not safetensors at all: the loader says why.
+    let Ok((entries, meta)) = read_safetensors(bytes, name) else { return Ok(None) };
+    if entries.iter().any(|e| e.name.starts_with("Unet.") || e.name.starts_with("Shallow.")) {
+        return Ok(None);
+    }
+    let shape_of = |k: &str| entries.iter().find(|e| e.name == k).map(|e| e.shape.clone());
+    let arch = match meta.get("arch").and_then(|a| a.as_str()) {
+        Some(a) => a.to_string(),
+        None => match (shape_of("inc.a.0.weight"), shape_of("blocks.0.0.weight")) {
+            (Some(s), _) => format!("{{\"type\":\"unet\",\"base\":{}}}", s[0]),
+            (None, Some(s)) => format!("{{\"type\":\"shallow\",\"width\":{}}}", s[0]),
+            _ => return Err(Error::Invalid(format!("{name}: neither a U-Net (inc.a.0.weight) nor a shallow model (blocks.0.0.weight)"))),
+        },
+    };
+    let mut out = Vec::new();
+    for e in entries {
+        if e.name.ends_with("num_batches_tracked") {
+            continue;
+        }
+        let b = burn_name(&e.name).ok_or_else(|| Error::Invalid(format!("{name}: {} is not a parameter of our networks", e.name)))?;
+        if e.dtype != "F32" {
+            return Err(Error::Invalid(format!("{name}: {} is {}, expected F32", e.name, e.dtype)));
+        }
+        out.push(Entry { name: b, ..e });
+    }
+    out.sort_by(|a, b| a.name.cmp(&b.name));
+    let mut m = serde_json::Map::new();
+    m.insert("arch".into(), arch.into());
+    m.insert("imported_from".into(), "pytorch state_dict".into());
+    Ok(Some(safetensors_bytes(&out, &m)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn burn_names_map_to_the_torch_modules() {
+        for (b, t) in [
+            ("Unet.inc.a.conv.weight", "inc.a.0.weight"),
+            ("Unet.inc.b.bn.gamma", "inc.b.1.weight"),
+            ("Unet.down1.conv.a.bn.beta", "downs.0.a.1.bias"),
+            ("Unet.down4.conv.b.bn.running_var", "downs.3.b.1.running_var"),
+            ("Unet.up1.up.weight", "ups.0.up.weight"),
+            ("Unet.up4.conv.a.conv.weight", "ups.3.conv.a.0.weight"),
+            ("Unet.outc.bias", "outc.bias"),
+            ("Shallow.blocks.8.conv.weight", "blocks.8.0.weight"),
+            ("Shallow.blocks.0.bn.running_mean", "blocks.0.1.running_mean"),
+            ("Shallow.out.weight", "out.weight"),
+        ] {
+            assert_eq!(torch_name(b).as_deref(), Some(t), "{b}");
+        }
+    }
+
+    #[test]
+    fn torch_names_map_back_to_burn_names() {
+        for m in [crate::model::infer::DEFAULT_MODEL, include_bytes!("../../models/shallow32-coded/model.safetensors").as_slice()] {
+            let (src, _) = read_safetensors(m, "m").unwrap();
+            for e in &src {
+                assert_eq!(burn_name(&torch_name(&e.name).unwrap()).as_deref(), Some(e.name.as_str()));
+            }
+        }
+        assert_eq!(burn_name("inc.a.1.num_batches_tracked"), None);
+        assert_eq!(burn_name("fc.weight"), None);
+    }
+
+    #[test]
+    fn an_exported_model_loads_back_with_the_same_weights() {
+        let (_, torch) = to_torch(crate::model::infer::DEFAULT_MODEL, "embedded").unwrap();
+        let back = from_torch(&torch, "t").unwrap().expect("torch names are converted");
+        let dev = burn::tensor::Device::flex();
+        let (a, arch_a) = crate::model::checkpoint::load_model_bytes(crate::model::infer::DEFAULT_MODEL, "a", &dev).unwrap();
+        let (b, arch_b) = crate::model::checkpoint::load_model_bytes(&back, "b", &dev).unwrap();
+        assert_eq!(arch_a, arch_b);
+        let x = burn::tensor::Tensor::<4>::from_data(
+            burn::tensor::TensorData::new((0..3 * 32 * 32).map(|i| (i % 97) as f32 / 97.0).collect::<Vec<_>>(), [1, 3, 32, 32]),
+            &dev,
+        );
+        let (ya, yb) = (a.forward(x.clone()).into_data().to_vec::<f32>().unwrap(), b.forward(x).into_data().to_vec::<f32>().unwrap());
+        assert_eq!(ya, yb);
+        assert!(from_torch(crate::model::infer::DEFAULT_MODEL, "burn").unwrap().is_none(), "burn names pass through");
+    }
+
+    #[test]
+    fn the_shipped_unet_exports_every_tensor_with_torch_names_and_the_same_data() {
+        let (names, bytes) = to_torch(crate::model::infer::DEFAULT_MODEL, "embedded").unwrap();
+        // 100 burn tensors plus one num_batches_tracked per BatchNorm (18 in U-Net 16).
+        assert_eq!(names.len(), 118);
+        let find = |n: &str| names.iter().find(|(k, _, _)| k == n).unwrap_or_else(|| panic!("{n} missing"));
+        assert_eq!(find("ups.0.up.weight").1, vec![128, 128, 2, 2]);
+        assert_eq!(find("inc.a.0.weight").1, vec![16, 3, 3, 3]);
+        assert_eq!(find("inc.a.1.num_batches_tracked").2, "I64");
+        assert_eq!(find("outc.bias").1, vec![3]);
+        assert!(names.iter().all(|(k, _, _)| !k.contains("gamma") && !k.contains("beta") && !k.starts_with("Unet")));
+        // The data is carried over unchanged: the output conv's bias, in both files.
+        let (src, _) = read_safetensors(crate::model::infer::DEFAULT_MODEL, "src").unwrap();
+        let (dst, meta) = read_safetensors(&bytes, "dst").unwrap();
+        let a = src.iter().find(|e| e.name == "Unet.outc.bias").unwrap();
+        let b = dst.iter().find(|e| e.name == "outc.bias").unwrap();
+        assert_eq!(a.data, b.data);
+        assert_eq!(meta["format"], "pt");
+    }
+}
