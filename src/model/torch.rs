@@ -1,5 +1,5 @@
 //! PyTorch names for our networks: `state_dict` keys of `benches/torch_models.py`'s `UNet(base)`
-//! and `Shallow(width)`, both ways. `pipeline export` writes them; `--model` reads them back (a
+//! and `Shallow(width)`, both ways (the inverse derived from burn's names). `pipeline export` writes them; `--model` reads them back (a
 //! model fine-tuned in PyTorch and saved with `safetensors.torch.save_file`).
 
 use crate::{Error, Result};
@@ -25,12 +25,8 @@ pub fn torch_name(burn: &str) -> Option<String> {
             ("Unet", u) if u.starts_with("up") && u.len() > 2 && u[2..].chars().all(|c| c.is_ascii_digit()) => {
                 out.push(format!("ups.{}", u[2..].parse::<usize>().ok()?.checked_sub(1)?));
             }
-            (_, "conv")
-                if matches!(next, Some("weight") | Some("bias"))
-                    && out.last().is_some_and(|l| l == "a" || l == "b" || l.parse::<usize>().is_ok()) =>
-            {
-                out.push("0".into())
-            }
+            // A ConvBn's convolution (`... .conv.weight`); `upK.conv.a` is a DoubleConv.
+            (_, "conv") if matches!(next, Some("weight") | Some("bias")) => out.push("0".into()),
             (_, "bn") => out.push("1".into()),
             (_, "gamma") => out.push("weight".into()),
             (_, "beta") => out.push("bias".into()),
@@ -119,42 +115,16 @@ pub fn to_torch(bytes: &[u8], name: &str) -> Result<(Vec<(String, Vec<usize>, St
     Ok((out.into_iter().map(|e| (e.name, e.shape, e.dtype)).collect(), written))
 }
 
-/// The burn name of a PyTorch `state_dict` key of our networks (the inverse of [`torch_name`]);
-/// `None` for keys burn does not keep (`num_batches_tracked`) or that are not ours.
-pub fn burn_name(torch: &str) -> Option<String> {
-    let parts: Vec<&str> = torch.split('.').collect();
-    let leaf = |p: &str, in_bn: bool| -> String {
-        match (p, in_bn) {
-            ("weight", true) => "gamma".into(),
-            ("bias", true) => "beta".into(),
-            (p, _) => p.into(),
-        }
-    };
-    // A conv+BN pair `X.0.weight` / `X.1.{weight,bias,running_*}` under a double conv (a or b) or a block.
-    let pair = |rest: &[&str]| -> Option<String> {
-        match rest {
-            ["0", p] => Some(format!("conv.{p}")),
-            ["1", "num_batches_tracked"] => None,
-            ["1", p] => Some(format!("bn.{}", leaf(p, true))),
-            _ => None,
-        }
-    };
-    let double = |rest: &[&str]| -> Option<String> {
-        match rest {
-            [ab @ ("a" | "b"), more @ ..] => Some(format!("{ab}.{}", pair(more)?)),
-            _ => None,
-        }
-    };
-    match parts.as_slice() {
-        ["inc", rest @ ..] => Some(format!("Unet.inc.{}", double(rest)?)),
-        ["downs", i, rest @ ..] => Some(format!("Unet.down{}.conv.{}", i.parse::<usize>().ok()? + 1, double(rest)?)),
-        ["ups", i, "up", p] => Some(format!("Unet.up{}.up.{p}", i.parse::<usize>().ok()? + 1)),
-        ["ups", i, "conv", rest @ ..] => Some(format!("Unet.up{}.conv.{}", i.parse::<usize>().ok()? + 1, double(rest)?)),
-        ["outc", p] => Some(format!("Unet.outc.{p}")),
-        ["blocks", i, rest @ ..] => Some(format!("Shallow.blocks.{i}.{}", pair(rest)?)),
-        ["out", p] => Some(format!("Shallow.out.{p}")),
-        _ => None,
-    }
+/// PyTorch name -> burn name for every parameter of a fresh network of `arch`: the inverse of
+/// [`torch_name`], derived from burn's own names so the two cannot drift apart.
+fn burn_names(arch: crate::model::Arch) -> Result<std::collections::HashMap<String, String>> {
+    use burn::store::{ModuleSnapshot, SafetensorsStore};
+    let net = crate::model::Net::new(arch, &burn::tensor::Device::flex());
+    let mut store = SafetensorsStore::from_bytes(None);
+    net.save_into(&mut store).map_err(|e| Error::Invalid(format!("{}: {e}", arch.name())))?;
+    let bytes = store.get_bytes().map_err(|e| Error::Invalid(format!("{}: {e}", arch.name())))?;
+    let (entries, _) = read_safetensors(&bytes, &arch.name())?;
+    Ok(entries.into_iter().filter_map(|e| torch_name(&e.name).map(|t| (t, e.name))).collect())
 }
 
 /// A model file written with PyTorch names (by `pipeline export`, or fine-tuned in PyTorch and
@@ -171,20 +141,24 @@ pub fn from_torch(bytes: &[u8], name: &str) -> Result<Option<Vec<u8>>> {
         return Ok(None);
     }
     let shape_of = |k: &str| entries.iter().find(|e| e.name == k).map(|e| e.shape.clone());
-    let arch = match meta.get("arch").and_then(|a| a.as_str()) {
-        Some(a) => a.to_string(),
+    let arch: crate::model::Arch = match meta.get("arch").and_then(|a| a.as_str()).and_then(|a| serde_json::from_str(a).ok()) {
+        Some(a) => a,
         None => match (shape_of("inc.a.0.weight"), shape_of("blocks.0.0.weight")) {
-            (Some(s), _) => format!("{{\"type\":\"unet\",\"base\":{}}}", s[0]),
-            (None, Some(s)) => format!("{{\"type\":\"shallow\",\"width\":{}}}", s[0]),
+            (Some(s), _) => crate::model::Arch::Unet { base: s[0] },
+            (None, Some(s)) => crate::model::Arch::Shallow { width: s[0] },
             _ => return Err(Error::Invalid(format!("{name}: neither a U-Net (inc.a.0.weight) nor a shallow model (blocks.0.0.weight)"))),
         },
     };
+    let names = burn_names(arch)?;
     let mut out = Vec::new();
     for e in entries {
         if e.name.ends_with("num_batches_tracked") {
             continue;
         }
-        let b = burn_name(&e.name).ok_or_else(|| Error::Invalid(format!("{name}: {} is not a parameter of our networks", e.name)))?;
+        let b = names
+            .get(&e.name)
+            .cloned()
+            .ok_or_else(|| Error::Invalid(format!("{name}: {} is not a parameter of {}", e.name, arch.name())))?;
         if e.dtype != "F32" {
             return Err(Error::Invalid(format!("{name}: {} is {}, expected F32", e.name, e.dtype)));
         }
@@ -192,7 +166,7 @@ pub fn from_torch(bytes: &[u8], name: &str) -> Result<Option<Vec<u8>>> {
     }
     out.sort_by(|a, b| a.name.cmp(&b.name));
     let mut m = serde_json::Map::new();
-    m.insert("arch".into(), arch.into());
+    m.insert("arch".into(), serde_json::to_string(&arch).expect("json").into());
     m.insert("imported_from".into(), "pytorch state_dict".into());
     Ok(Some(safetensors_bytes(&out, &m)))
 }
@@ -220,15 +194,24 @@ mod tests {
     }
 
     #[test]
-    fn torch_names_map_back_to_burn_names() {
-        for m in [crate::model::infer::DEFAULT_MODEL, include_bytes!("../../models/shallow32-coded/model.safetensors").as_slice()] {
+    fn every_parameter_has_its_own_torch_name() {
+        use crate::model::Arch;
+        for (m, arch) in [
+            (crate::model::infer::DEFAULT_MODEL, Arch::Unet { base: 16 }),
+            (include_bytes!("../../models/shallow32-coded/model.safetensors").as_slice(), Arch::Shallow { width: 32 }),
+        ] {
             let (src, _) = read_safetensors(m, "m").unwrap();
+            let inverse = burn_names(arch).unwrap();
+            assert_eq!(inverse.len(), src.len(), "one torch name per parameter, none shared");
             for e in &src {
-                assert_eq!(burn_name(&torch_name(&e.name).unwrap()).as_deref(), Some(e.name.as_str()));
+                assert_eq!(inverse.get(&torch_name(&e.name).unwrap()), Some(&e.name));
             }
         }
-        assert_eq!(burn_name("inc.a.1.num_batches_tracked"), None);
-        assert_eq!(burn_name("fc.weight"), None);
+        // A key that is not ours (same length, so the header stays valid) is named.
+        let mut torch = to_torch(crate::model::infer::DEFAULT_MODEL, "m").unwrap().1;
+        let at = torch.windows(9).position(|w| w == b"outc.bias").unwrap();
+        torch[at..at + 9].copy_from_slice(b"outc.zzzz");
+        assert!(from_torch(&torch, "renamed").unwrap_err().to_string().contains("outc.zzzz"));
     }
 
     #[test]
