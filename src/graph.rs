@@ -256,7 +256,7 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
             task,
             settings: &settings,
         };
-        let kind = serde_json::to_value(st).ok().and_then(|v| v["type"].as_str().map(str::to_string)).unwrap_or_default();
+        let kind = st.type_name();
         match st.config().build(&ctx).map_err(|e| Error::Stage { stage: name.clone(), source: Box::new(e) })? {
             Built::Source(s) => source = Some(s),
             Built::Transform(t) => transforms.push((name.clone(), kind, t)),

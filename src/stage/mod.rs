@@ -95,8 +95,26 @@ macro_rules! registry {
                     $($(#[$m])* StageKind::$variant(c) => c,)*
                 }
             }
+            /// The `type` written in the pipeline file (`coded_blur`).
+            pub fn type_name(&self) -> String {
+                match self {
+                    $($(#[$m])* StageKind::$variant(_) => snake_case(stringify!($variant)),)*
+                }
+            }
         }
     };
+}
+
+/// `CodedBlur` -> `coded_blur`, as serde's `rename_all = "snake_case"` spells a variant.
+fn snake_case(ident: &str) -> String {
+    let mut out = String::new();
+    for (i, c) in ident.chars().enumerate() {
+        if c.is_uppercase() && i > 0 {
+            out.push('_');
+        }
+        out.push(c.to_ascii_lowercase());
+    }
+    out
 }
 
 registry! {
@@ -354,5 +372,25 @@ pub trait Sink: Send {
     /// then stops its sources and finishes normally.
     fn wants_more(&self) -> bool {
         true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn type_names_are_the_types_written_in_pipeline_files() {
+        for text in [
+            include_str!("../../pipelines/generate.toml"),
+            include_str!("../../pipelines/train-stream.toml"),
+            include_str!("../../pipelines/frames.toml"),
+        ] {
+            let t: toml::Table = toml::from_str(text).unwrap();
+            for section in ["sources", "transforms", "sinks"] {
+                for (_, v) in t[section].as_table().unwrap() {
+                    let kind: super::StageKind = v.clone().try_into().unwrap();
+                    assert_eq!(kind.type_name(), v["type"].as_str().unwrap());
+                }
+            }
+        }
     }
 }
