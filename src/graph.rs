@@ -422,83 +422,34 @@ fn write_report(dir: &Path, opts: &RunOptions, stem: &str, r: &Report) -> Result
     crate::io::write_atomic(&dir.join(format!("{stem}.json")), |w| w.write_all(&bytes))
 }
 
-/// Progress on stderr.
+/// The run's progress line or bar: inputs finished, with frames, windows and samples so far.
 struct Progress {
-    mode: ProgressMode,
+    bar: crate::progress::Bar,
     counters: Arc<Counters>,
     start: Instant,
-    last: Mutex<Instant>,
-    bars: Option<(indicatif::MultiProgress, [indicatif::ProgressBar; 3])>,
 }
 
 impl Progress {
     fn new(mode: ProgressMode, counters: Arc<Counters>, inputs: usize) -> Progress {
-        let mode = mode.resolve();
-        let bars = (mode == ProgressMode::Auto).then(|| {
-            let mp = indicatif::MultiProgress::new();
-            let style = indicatif::ProgressStyle::with_template("{prefix:>8} {spinner} {pos:>8} {msg}").expect("template");
-            let mk = |p: &str| {
-                let b = mp.add(indicatif::ProgressBar::new_spinner());
-                b.set_style(style.clone());
-                b.set_prefix(p.to_string());
-                b
-            };
-            let bars = [mk("frames"), mk("windows"), mk("samples")];
-            bars[0].set_message(format!("of {inputs} inputs"));
-            (mp, bars)
-        });
-        Progress { mode, counters, start: Instant::now(), last: Mutex::new(Instant::now()), bars }
-    }
-
-    fn line(&self) -> String {
-        let c = &self.counters;
-        let secs = self.start.elapsed().as_secs_f64().max(1e-9);
-        let f = Counters::get(&c.frames);
-        format!(
-            "{f} frames ({:.1}/s), {} windows, {} samples, inputs {}/{} done, {} failed",
-            f as f64 / secs,
-            Counters::get(&c.windows),
-            Counters::get(&c.samples),
-            Counters::get(&c.inputs_done),
-            Counters::get(&c.inputs_total),
-            Counters::get(&c.inputs_failed)
-        )
+        Progress { bar: crate::progress::Bar::new(mode, "generate", "inputs", Some(inputs as u64)), counters, start: Instant::now() }
     }
 
     fn tick(&self) {
-        match (&self.bars, self.mode) {
-            (Some((_, b)), _) => {
-                let c = &self.counters;
-                let secs = self.start.elapsed().as_secs_f64().max(1e-9);
-                let f = Counters::get(&c.frames);
-                b[0].set_position(f);
-                b[0].set_message(format!(
-                    "{:.1} frames/s, inputs {}/{}",
-                    f as f64 / secs,
-                    Counters::get(&c.inputs_done),
-                    Counters::get(&c.inputs_total)
-                ));
-                b[1].set_position(Counters::get(&c.windows));
-                b[2].set_position(Counters::get(&c.samples));
-                b[2].set_message(format!("{:.1} samples/s", Counters::get(&c.samples) as f64 / secs));
-            }
-            (None, ProgressMode::Lines) => {
-                let mut last = self.last.lock().expect("progress");
-                if last.elapsed() >= Duration::from_secs(5) {
-                    *last = Instant::now();
-                    eprintln!("progress: {}", self.line());
-                }
-            }
-            _ => {}
-        }
+        let c = &self.counters;
+        let secs = self.start.elapsed().as_secs_f64().max(1e-9);
+        let f = Counters::get(&c.frames);
+        self.bar.set_message(format!(
+            "{f} frames ({:.1}/s), {} windows, {} samples, {} failed",
+            f as f64 / secs,
+            Counters::get(&c.windows),
+            Counters::get(&c.samples),
+            Counters::get(&c.inputs_failed)
+        ));
+        self.bar.set_position(Counters::get(&c.inputs_done) + Counters::get(&c.inputs_failed));
     }
 
     fn finish(&self) {
-        if let Some((_, b)) = &self.bars {
-            self.tick();
-            for bar in b {
-                bar.finish();
-            }
-        }
+        self.tick();
+        self.bar.finish();
     }
 }

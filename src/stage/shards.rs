@@ -424,10 +424,10 @@ impl Shards {
             match o.close() {
                 Ok(c) => cur.closed.push(c),
                 Err(e) => {
-                    let _ = std::fs::remove_file(&tmp);
-                    cur.open = None;
-                    self.cur = Some(cur);
-                    self.discard();
+                    // Nothing of this input stays: its finished shards and the broken one go.
+                    for p in cur.closed.iter().map(|(t, _)| t).chain([&tmp]) {
+                        let _ = std::fs::remove_file(p);
+                    }
                     return Err(crate::Error::Io { path: tmp, cause: e });
                 }
             }
