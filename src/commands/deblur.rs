@@ -295,8 +295,12 @@ pub fn images(
     if files.is_empty() {
         return Err(Error::Usage(format!("{}: no image found ({})", input.display(), IMAGE_EXTENSIONS.join(", "))));
     }
-    std::fs::create_dir_all(output).map_err(|e| Error::Io { path: output.to_path_buf(), cause: e })?;
-    remove_stale(output);
+    // One image to a file named like an image (`deblur a.png -o b.png`): written there, in the
+    // format of its own extension. Otherwise the output is a folder of the same names.
+    let single = (input.is_file() && image_ext(output).is_some()).then(|| image_ext(output).expect("checked"));
+    let folder = if single.is_some() { output.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")) } else { output };
+    std::fs::create_dir_all(folder).map_err(|e| Error::Io { path: folder.to_path_buf(), cause: e })?;
+    remove_stale(folder);
     let bar = Bar::new(progress, "deblur", "images", Some(files.len() as u64));
     let (mut w, mut h, mut done) = (0, 0, 0);
     let mut failed = Vec::new();
@@ -311,7 +315,11 @@ pub fn images(
         let ext = f.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
         let res = read_image(f, &ext).and_then(|(fw, fh, rgb)| {
             let out = run_frame(net, &rgb, fw, fh, tiling);
-            write_image(&output.join(f.file_name().expect("a file")), &ext, fw, fh, &out).map(|()| (fw, fh))
+            match &single {
+                Some(out_ext) => write_image(output, out_ext, fw, fh, &out),
+                None => write_image(&output.join(f.file_name().expect("a file")), &ext, fw, fh, &out),
+            }
+            .map(|()| (fw, fh))
         });
         match res {
             Ok(size) => {
@@ -333,6 +341,12 @@ pub fn images(
     Ok(r)
 }
 
+/// The lower-case extension of `p` when it is one of [`IMAGE_EXTENSIONS`].
+pub fn image_ext(p: &Path) -> Option<String> {
+    let e = p.extension()?.to_str()?.to_ascii_lowercase();
+    IMAGE_EXTENSIONS.contains(&e.as_str()).then_some(e)
+}
+
 /// Writes the report beside the output.
 ///
 /// # Errors
@@ -344,9 +358,9 @@ pub fn write_report(path: &Path, r: &DeblurReport) -> Result<()> {
 
 #[derive(Args, Debug)]
 pub struct DeblurArgs {
-    /// A video FFmpeg reads, or a folder (or glob) of PNG, JPEG, TIFF or OpenEXR images.
+    /// A video FFmpeg reads, one image, or a folder (or glob) of PNG, JPEG, TIFF or OpenEXR images.
     pub input: PathBuf,
-    /// Output video (.mp4, .mkv, .mov...) or folder.
+    /// Output video (.mp4, .mkv, .mov...), image (for one image: its format from the extension) or folder.
     #[arg(short, long)]
     pub out: PathBuf,
     /// A model written by `pipeline train`; default: the shipped U-Net 16 (coded camera).
@@ -384,7 +398,7 @@ pub fn command(a: DeblurArgs) -> anyhow::Result<()> {
     let (net, name) = crate::model::infer::load(model.as_deref())?;
     let tiling = crate::model::infer::Tiling { tile: d.tile, overlap: d.overlap };
     let bar = file.progress;
-    let r = if input.is_dir() || input.to_string_lossy().contains('*') {
+    let r = if input.is_dir() || input.to_string_lossy().contains('*') || crate::commands::deblur::image_ext(&input).is_some() {
         crate::commands::deblur::images(&net, &name, &input, &out, tiling, bar)?
     } else {
         crate::commands::deblur::video(&net, &name, &input, &out, tiling, lossless, bar)?

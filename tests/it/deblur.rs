@@ -48,8 +48,17 @@ fn a_folder_of_images_keeps_the_names() {
     assert!(o.status.success(), "{}", stderr(&o));
     let names: Vec<String> = files(&dst).into_iter().filter(|f| f.ends_with(".png")).collect();
     assert_eq!(names, vec!["a.png", "frame_0002.png"]);
-    let (w, h, _) = pipeline::io::png::read_rgb8(&std::fs::read(dst.join("a.png")).unwrap()).unwrap();
+    let (w, h, folder_out) = pipeline::io::png::read_rgb8(&std::fs::read(dst.join("a.png")).unwrap()).unwrap();
     assert_eq!((w, h), (40, 30));
+    // One image to an image file: that file, a real PNG with the pixels the folder run made
+    // (it was an H.264 stream named .png before), and to a folder: the same name inside it.
+    let one = d.join("single/b.png");
+    let o = run(&["deblur", src.join("a.png").to_str().unwrap(), "-o", one.to_str().unwrap(), "--progress", "never"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(pipeline::io::png::read_rgb8(&std::fs::read(&one).unwrap()).unwrap(), (40, 30, folder_out.clone()));
+    let o = run(&["deblur", src.join("a.png").to_str().unwrap(), "-o", d.join("into").to_str().unwrap(), "--progress", "never"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(pipeline::io::png::read_rgb8(&std::fs::read(d.join("into/a.png")).unwrap()).unwrap().2, folder_out);
 }
 
 #[test]
