@@ -241,32 +241,8 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
     Counters::add(&counters.inputs_total, selected.len() as u64);
 
     // Build every stage before any thread starts; each gets its own config and the context.
-    let mut source: Option<Box<dyn Source>> = None;
-    let mut transforms: Vec<(String, String, Box<dyn Transform>)> = Vec::new();
-    let mut sink: Option<(String, Box<dyn Sink>)> = None;
-    for (i, (name, st)) in plan.stages.iter().enumerate() {
-        let ctx = BuildContext {
-            name,
-            seed: plan.seed,
-            inputs: &selected,
-            needs: plan.needs_after(i),
-            crop: plan.crop_for(i),
-            counters: counters.clone(),
-            out_dir: &out_dir,
-            task,
-            settings: &settings,
-        };
-        let kind = st.type_name();
-        match st.config().build(&ctx).map_err(|e| Error::Stage { stage: name.clone(), source: Box::new(e) })? {
-            Built::Source(s) => source = Some(s),
-            Built::Transform(t) => transforms.push((name.clone(), kind, t)),
-            Built::Sink(s) => sink = Some((name.clone(), s)),
-        }
-    }
-    let mut source = source.expect("a plan has a source");
-    let (sink_name, mut sink) = sink.expect("a plan has a sink");
-    let source_name = plan.stages[0].0.clone();
-
+    let built = build(plan, &selected, &counters, &out_dir, task, &settings, true)?;
+    let (sink_name, mut sink) = built.sink.expect("built with its sink");
     let stop = Arc::new(AtomicBool::new(false));
     let first: FirstError = Arc::new(Mutex::new(None));
     let cap = plan.run.channel_capacity;
@@ -276,54 +252,7 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
     let progress = Progress::new(opts.progress, counters.clone(), selected.len());
 
     std::thread::scope(|s| {
-        let (tx0, mut rx) = bounded::<Item>(cap);
-        let mut handles = Vec::new();
-        {
-            let (stop, first, name) = (stop.clone(), first.clone(), source_name.clone());
-            handles.push(s.spawn(move || {
-                let t = Timing::new();
-                let mut out = Emit::new(&tx0, &stop);
-                if let Err(e) = source.run(&mut out) {
-                    record(&first, &stop, &name, e);
-                }
-                StageReport { name, kind: "source".into(), busy_s: t.busy() - out.waited.as_secs_f64(), items_in: 0 }
-            }));
-        }
-        for (name, kind, mut tr) in transforms.into_iter() {
-            let (tx, next_rx) = bounded::<Item>(cap);
-            let my_rx = std::mem::replace(&mut rx, next_rx);
-            let (stop, first) = (stop.clone(), first.clone());
-            handles.push(s.spawn(move || {
-                let mut t = Timing::new();
-                let mut out = Emit::new(&tx, &stop);
-                let mut failed: Vec<usize> = Vec::new();
-                while let Some(item) = recv(&my_rx, &stop, &mut t) {
-                    if input_of(&item).is_some_and(|i| failed.contains(&i)) {
-                        continue;
-                    }
-                    match tr.process(item, &mut out) {
-                        Ok(()) => {}
-                        Err(StageError::Input(input, msg)) => {
-                            failed.push(input.index);
-                            out.send(Item::End(input, Err(msg)));
-                        }
-                        Err(StageError::Fatal(e)) => {
-                            record(&first, &stop, &name, e);
-                            break;
-                        }
-                    }
-                    if out.closed {
-                        break;
-                    }
-                }
-                if !stop.load(Ordering::Relaxed) {
-                    if let Err(StageError::Fatal(e)) = tr.finish(&mut out) {
-                        record(&first, &stop, &name, e);
-                    }
-                }
-                StageReport { name, kind, busy_s: t.busy() - out.waited.as_secs_f64(), items_in: t.items }
-            }));
-        }
+        let (rx, handles) = start(built.source, built.transforms, cap, &stop, &first);
         let sink_handle = {
             let (stop, first, name, summary) = (stop.clone(), first.clone(), sink_name.clone(), &sink_summary);
             let sink = &mut sink;
@@ -409,6 +338,201 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
     let stem = plan.sink().report_stem();
     write_report(&out_dir, opts, stem, &report)?;
     Ok(Outcome { report, out_dir })
+}
+
+/// A plan's stages, built for this task's inputs.
+struct Stages {
+    source: (String, Box<dyn Source>),
+    /// (name, type, runtime)
+    transforms: Vec<(String, String, Box<dyn Transform>)>,
+    sink: Option<(String, Box<dyn Sink>)>,
+}
+
+/// Builds every stage (the sink only `with_sink`) before any thread starts; each gets its own
+/// config and the context.
+fn build(
+    plan: &Plan,
+    selected: &[(Arc<Input>, Option<PathBuf>)],
+    counters: &Arc<Counters>,
+    out_dir: &Path,
+    task: (usize, usize),
+    settings: &str,
+    with_sink: bool,
+) -> Result<Stages> {
+    let (mut source, mut transforms, mut sink) = (None, Vec::new(), None);
+    let last = plan.stages.len() - 1;
+    for (i, (name, st)) in plan.stages.iter().enumerate() {
+        if i == last && !with_sink {
+            break;
+        }
+        let ctx = BuildContext {
+            name,
+            seed: plan.seed,
+            inputs: selected,
+            needs: plan.needs_after(i),
+            crop: plan.crop_for(i),
+            counters: counters.clone(),
+            out_dir,
+            task,
+            settings,
+        };
+        match st.config().build(&ctx).map_err(|e| Error::Stage { stage: name.clone(), source: Box::new(e) })? {
+            Built::Source(s) => source = Some((name.clone(), s)),
+            Built::Transform(t) => transforms.push((name.clone(), st.type_name(), t)),
+            Built::Sink(s) => sink = Some((name.clone(), s)),
+        }
+    }
+    Ok(Stages { source: source.expect("a plan starts with a source"), transforms, sink })
+}
+
+/// Starts the source and each transform on its own thread, joined by bounded channels; the
+/// last transform's items come out of the returned receiver. Every stage stops when `stop` is
+/// set or its receiver is dropped; the first fatal error goes to `first`.
+fn start(
+    source: (String, Box<dyn Source>),
+    transforms: Vec<(String, String, Box<dyn Transform>)>,
+    cap: usize,
+    stop: &Arc<AtomicBool>,
+    first: &FirstError,
+) -> (Receiver<Item>, Vec<std::thread::JoinHandle<StageReport>>) {
+    let (tx0, mut rx) = bounded::<Item>(cap);
+    let mut handles = Vec::new();
+    {
+        let (stop, first, (name, mut source)) = (stop.clone(), first.clone(), source);
+        handles.push(std::thread::spawn(move || {
+            let t = Timing::new();
+            let mut out = Emit::new(&tx0, &stop);
+            if let Err(e) = source.run(&mut out) {
+                record(&first, &stop, &name, e);
+            }
+            StageReport { name, kind: "source".into(), busy_s: t.busy() - out.waited.as_secs_f64(), items_in: 0 }
+        }));
+    }
+    for (name, kind, mut tr) in transforms {
+        let (tx, next_rx) = bounded::<Item>(cap);
+        let my_rx = std::mem::replace(&mut rx, next_rx);
+        let (stop, first) = (stop.clone(), first.clone());
+        handles.push(std::thread::spawn(move || {
+            let mut t = Timing::new();
+            let mut out = Emit::new(&tx, &stop);
+            let mut failed: Vec<usize> = Vec::new();
+            while let Some(item) = recv(&my_rx, &stop, &mut t) {
+                if input_of(&item).is_some_and(|i| failed.contains(&i)) {
+                    continue;
+                }
+                match tr.process(item, &mut out) {
+                    Ok(()) => {}
+                    Err(StageError::Input(input, msg)) => {
+                        failed.push(input.index);
+                        out.send(Item::End(input, Err(msg)));
+                    }
+                    Err(StageError::Fatal(e)) => {
+                        record(&first, &stop, &name, e);
+                        break;
+                    }
+                }
+                if out.closed {
+                    break;
+                }
+            }
+            if !stop.load(Ordering::Relaxed) {
+                if let Err(StageError::Fatal(e)) = tr.finish(&mut out) {
+                    record(&first, &stop, &name, e);
+                }
+            }
+            StageReport { name, kind, busy_s: t.busy() - out.waited.as_secs_f64(), items_in: t.items }
+        }));
+    }
+    (rx, handles)
+}
+
+/// A plan's samples in this process, as its stages make them, without its sink: what the
+/// Python dataset iterates. Inputs are this task's share (`i % count == index` of the sorted
+/// list, as `generate --shard-index` takes them), read in order, so with one task the samples
+/// come in the order `pipeline generate` writes them. Dropping the stream stops every stage.
+pub struct SampleStream {
+    rx: Option<Receiver<Item>>,
+    stop: Arc<AtomicBool>,
+    first: FirstError,
+    handles: Vec<std::thread::JoinHandle<StageReport>>,
+    /// This task's inputs, in the order they are read.
+    pub inputs: Vec<Arc<Input>>,
+}
+
+/// What [`SampleStream::next`] found.
+pub enum Next {
+    Sample(Box<crate::frame::Sample>),
+    /// An input failed (path, reason); its samples already given are not taken back.
+    Failed(String, String),
+    /// Nothing within the timeout; ask again.
+    Waiting,
+    /// Every input is done.
+    End,
+}
+
+impl SampleStream {
+    /// Starts the plan's source and transforms on this task's inputs.
+    ///
+    /// # Errors
+    /// No input, a bad task split, or a stage that fails to build (named).
+    pub fn open(plan: &Plan, task: (usize, usize)) -> Result<SampleStream> {
+        if task.1 == 0 || task.0 >= task.1 {
+            return Err(Error::Usage(format!("task index {} must be below the task count {}", task.0, task.1)));
+        }
+        let all = list_inputs(plan)?;
+        if all.is_empty() {
+            return Err(Error::Usage("no input: the paths name no file the source reads".into()));
+        }
+        let selected: Vec<_> = all.into_iter().filter(|(i, _)| i.index % task.1 == task.0).collect();
+        let counters = Arc::new(Counters::default());
+        let settings = content_hash(&plan.resolved);
+        let stages = build(plan, &selected, &counters, &plan.out_dir(), task, &settings, false)?;
+        let stop = Arc::new(AtomicBool::new(false));
+        let first: FirstError = Arc::new(Mutex::new(None));
+        let inputs = selected.iter().map(|(i, _)| i.clone()).collect();
+        if selected.is_empty() {
+            // Nothing for this task (more tasks than inputs): an empty stream.
+            return Ok(SampleStream { rx: None, stop, first, handles: Vec::new(), inputs });
+        }
+        let (rx, handles) = start(stages.source, stages.transforms, plan.run.channel_capacity, &stop, &first);
+        Ok(SampleStream { rx: Some(rx), stop, first, handles, inputs })
+    }
+
+    /// The next sample or failed input, waiting at most `timeout`.
+    ///
+    /// # Errors
+    /// The first fatal error of any stage (named).
+    pub fn next(&mut self, timeout: Duration) -> Result<Next> {
+        let Some(rx) = &self.rx else { return Ok(Next::End) };
+        loop {
+            match rx.recv_timeout(timeout) {
+                Ok(Item::Sample(s)) => return Ok(Next::Sample(s)),
+                Ok(Item::End(input, Err(e))) => return Ok(Next::Failed(input.path.clone(), e)),
+                Ok(_) => continue,
+                Err(RecvTimeoutError::Timeout) => return Ok(Next::Waiting),
+                Err(RecvTimeoutError::Disconnected) => {
+                    self.rx = None;
+                    for h in self.handles.drain(..) {
+                        let _ = h.join();
+                    }
+                    return match self.first.lock().expect("error slot").take() {
+                        Some(e) => Err(e),
+                        None => Ok(Next::End),
+                    };
+                }
+            }
+        }
+    }
+}
+
+impl Drop for SampleStream {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        self.rx = None;
+        for h in self.handles.drain(..) {
+            let _ = h.join();
+        }
+    }
 }
 
 /// Writes `reports/{stem}[-{task}-of-{n}]-{time}-{pid}.json` (kept) and `{stem}[-{task}-of-{n}].json`

@@ -184,19 +184,37 @@ pub fn describe(table: toml::Table, origin: &crate::config::Origin) -> crate::Re
 /// # Errors
 /// As [`crate::graph::run`]; failed inputs as [`crate::Error::InputsFailed`].
 pub fn generate(a: GenerateArgs) -> anyhow::Result<()> {
-    let (mut table, origin) = super::load_or_embedded(a.config.as_deref(), GENERATE_TOML, "pipelines/generate.toml", &[])?;
-    if !a.videos.is_empty() {
-        let sources =
-            table.get_mut("sources").and_then(|s| s.as_table_mut()).ok_or_else(|| anyhow::anyhow!("the pipeline has no [sources]"))?;
+    let (table, origin) = generate_table(a.config.as_deref(), &a.videos, &a.common.sets)?;
+    run_plan(table, &origin, a.out.as_ref(), &a.common)
+}
+
+/// The pipeline `pipeline generate` runs: `config` (default: the embedded
+/// pipelines/generate.toml) with every source reading `paths` (when given), then the `sets`
+/// applied; and where each value came from, for error messages. The Python dataset builds its
+/// plan here too, so it makes what `generate` makes.
+///
+/// # Errors
+/// An unreadable or malformed file, a pipeline without sources, a bad `--set`.
+pub fn generate_table(
+    config: Option<&std::path::Path>,
+    paths: &[String],
+    sets: &[String],
+) -> crate::Result<(toml::Table, crate::config::Origin)> {
+    let (mut table, origin) = super::load_or_embedded(config, GENERATE_TOML, "pipelines/generate.toml", &[])?;
+    if !paths.is_empty() {
+        let sources = table
+            .get_mut("sources")
+            .and_then(|s| s.as_table_mut())
+            .ok_or_else(|| crate::Error::ConfigText(format!("{origin}: the pipeline has no [sources]")))?;
         for (_, src) in sources.iter_mut() {
             if let Some(t) = src.as_table_mut() {
-                t.insert("paths".into(), toml::Value::Array(a.videos.iter().map(|v| toml::Value::String(v.clone())).collect()));
+                t.insert("paths".into(), toml::Value::Array(paths.iter().map(|v| toml::Value::String(v.clone())).collect()));
             }
         }
     }
-    crate::config::apply_sets(&mut table, &a.common.sets).map_err(crate::Error::ConfigText)?;
-    let text = a.config.is_none().then_some(GENERATE_TOML);
-    run_plan(table, &crate::config::Origin::new(&origin, text, &a.common.sets), a.out.as_ref(), &a.common)
+    crate::config::apply_sets(&mut table, sets).map_err(crate::Error::ConfigText)?;
+    let text = config.is_none().then_some(GENERATE_TOML);
+    Ok((table, crate::config::Origin::new(&origin, text, sets)))
 }
 
 /// Runs `pipeline run`: a pipeline file.

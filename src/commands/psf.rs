@@ -4,7 +4,6 @@
 use crate::io::{exr, font, npy, png as png_io, write_atomic};
 use crate::optics::{Camera, CameraConfig, CameraKind, Dispersion, Lens, OpticsConfig, Psf, Spectrum};
 use crate::{Error, Result};
-use anyhow::Context;
 use clap::Args;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -309,20 +308,21 @@ fn parse_sign(s: &str) -> Result<f64, String> {
 /// `[optics]` and `[camera]` read from a file.
 #[derive(serde::Deserialize, Default)]
 #[serde(deny_unknown_fields, default)]
-pub(crate) struct OpticsFile {
+pub struct OpticsFile {
     pub optics: OpticsConfig,
     pub camera: Option<CameraConfig>,
 }
 
-/// Runs `pipeline psf`.
+/// The optics, camera and request the arguments describe (the file, then the flags over it),
+/// every value checked. The Python package's `psf()` fills a [`PsfArgs`] and calls this too.
 ///
 /// # Errors
-/// Bad optics or camera values (all named), an unwritable output.
-pub fn command(a: PsfArgs) -> anyhow::Result<()> {
+/// An unreadable or malformed file, bad values (all named), --psi with --window.
+pub fn resolve(a: &PsfArgs) -> crate::Result<(OpticsConfig, CameraConfig, PsfRequest)> {
     let file = match &a.config {
         Some(p) => {
-            let text = std::fs::read_to_string(p).with_context(|| format!("{}", p.display()))?;
-            toml::from_str::<OpticsFile>(&text).map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?
+            let text = std::fs::read_to_string(p).map_err(|e| Error::Io { path: p.clone(), cause: e })?;
+            toml::from_str::<OpticsFile>(&text).map_err(|e| Error::ConfigText(format!("{}: {}", p.display(), e.to_string().trim())))?
         }
         None => OpticsFile::default(),
     };
@@ -346,14 +346,23 @@ pub fn command(a: PsfArgs) -> anyhow::Result<()> {
     let mut errs = optics.validate("optics");
     errs.extend(camera.validate("camera"));
     if !errs.is_empty() {
-        return Err(crate::Error::Config(errs).into());
+        return Err(crate::Error::Config(errs));
     }
-    let req = match (a.psi, a.window) {
-        (Some(p), None) => PsfRequest::Psi(p.0),
+    let req = match (&a.psi, a.window) {
+        (Some(p), None) => PsfRequest::Psi(p.0.clone()),
         (None, Some(n)) => PsfRequest::Window(n as usize),
         (None, None) => PsfRequest::Psi(parse_psi_list("0:8:9").expect("default psi list")),
-        (Some(_), Some(_)) => return Err(Error::Usage("--psi and --window exclude each other".into()).into()),
+        (Some(_), Some(_)) => return Err(Error::Usage("--psi and --window exclude each other".into())),
     };
+    Ok((optics, camera, req))
+}
+
+/// Runs `pipeline psf`.
+///
+/// # Errors
+/// Bad optics or camera values (all named), an unwritable output.
+pub fn command(a: PsfArgs) -> anyhow::Result<()> {
+    let (optics, camera, req) = resolve(&a)?;
     let window = matches!(req, PsfRequest::Window(_));
     let t0 = std::time::Instant::now();
     let rows = compute(&optics, &camera, &req)?;

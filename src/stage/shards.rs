@@ -121,14 +121,14 @@ struct PatchMeta {
     h: usize,
 }
 
-fn sample_key(s: &Sample, p: &Pair) -> String {
+pub fn sample_key(s: &Sample, p: &Pair) -> String {
     match p.patch {
         Some(i) => format!("{}_{:06}_{:03}", s.input.key, s.window, i),
         None => format!("{}_{:06}", s.input.key, s.window),
     }
 }
 
-fn meta_json(s: &Sample, p: &Pair) -> Vec<u8> {
+pub fn meta_json(s: &Sample, p: &Pair) -> Vec<u8> {
     let m = SampleMeta {
         video: &s.input.path,
         input: &s.input.key,
