@@ -6,7 +6,7 @@ Usage: python3 benches/torch_models.py unet|shallow WIDTH BATCH REPEATS
        python3 benches/torch_models.py infer unet|shallow WIDTH HEIGHT FRAME_WIDTH REPEATS
 Skipped by `pipeline bench train` when torch is not installed.
 """
-import json, os, statistics, sys, time
+import importlib.util, json, os, statistics, sys, time
 
 import torch
 from torch import nn
@@ -16,59 +16,12 @@ if os.environ.get("TORCH_THREADS"):
     torch.set_num_threads(int(os.environ["TORCH_THREADS"]))
 
 
-def conv_bn(cin, cout):
-    return nn.Sequential(nn.Conv2d(cin, cout, 3, padding=1, bias=False), nn.BatchNorm2d(cout))
-
-
-class DoubleConv(nn.Module):
-    def __init__(self, cin, cout):
-        super().__init__()
-        self.a, self.b = conv_bn(cin, cout), conv_bn(cout, cout)
-
-    def forward(self, x):
-        x = nn.functional.leaky_relu(self.a(x), 0.01)
-        return nn.functional.leaky_relu(self.b(x), 0.01)
-
-
-class Up(nn.Module):
-    def __init__(self, cin, skip, cout):
-        super().__init__()
-        self.up = nn.ConvTranspose2d(cin, cin, 2, stride=2)
-        self.conv = DoubleConv(cin + skip, cout)
-
-    def forward(self, x, s):
-        return self.conv(torch.cat([s, self.up(x)], 1))
-
-
-class UNet(nn.Module):
-    def __init__(self, b):
-        super().__init__()
-        self.inc = DoubleConv(3, b)
-        self.downs = nn.ModuleList([DoubleConv(i, o) for i, o in [(b, 2 * b), (2 * b, 4 * b), (4 * b, 8 * b), (8 * b, 8 * b)]])
-        self.ups = nn.ModuleList([Up(8 * b, 8 * b, 4 * b), Up(4 * b, 4 * b, 2 * b), Up(2 * b, 2 * b, b), Up(b, b, b)])
-        self.outc = nn.Conv2d(b, 3, 1)
-
-    def forward(self, x):
-        xs = [self.inc(x)]
-        for d in self.downs:
-            xs.append(d(nn.functional.max_pool2d(xs[-1], 2)))
-        y = xs.pop()
-        for u in self.ups:
-            y = u(y, xs.pop())
-        return x + self.outc(y)
-
-
-class Shallow(nn.Module):
-    def __init__(self, w):
-        super().__init__()
-        self.blocks = nn.ModuleList([conv_bn(3 if i == 0 else w, w) for i in range(9)])
-        self.out = nn.Conv2d(w, 3, 3, padding=1)
-
-    def forward(self, x):
-        y = x
-        for b in self.blocks:
-            y = torch.relu(b(y))
-        return x + self.out(y)
+# The networks are the Python package's (python/pipeline/models.py), loaded by path so this
+# script runs without building the package.
+_spec = importlib.util.spec_from_file_location("pipeline_models", os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "python", "pipeline", "models.py"))
+_models = importlib.util.module_from_spec(_spec)
+_spec.loader.exec_module(_models)
+UNet, Shallow = _models.UNet, _models.Shallow
 
 
 def infer(kind, width, h, w, repeats):

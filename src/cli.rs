@@ -65,7 +65,7 @@ pub enum Command {
     Figure(crate::commands::figure::FigureArgs),
     /// Check pipeline files and report every error, each naming its key.
     Validate(crate::commands::generate::ValidateArgs),
-    /// Write a trained model with PyTorch state_dict names (benches/torch_models.py's UNet and
+    /// Write a trained model with PyTorch state_dict names (python/pipeline/models.py's UNet and
     /// Shallow), for fine-tuning or deployment in PyTorch.
     #[cfg(feature = "train")]
     #[command(

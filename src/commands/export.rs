@@ -13,7 +13,7 @@ pub struct ExportArgs {
     /// Output `.safetensors` file.
     #[arg(short, long)]
     pub out: PathBuf,
-    /// Target naming: torch (PyTorch `state_dict` keys of benches/torch_models.py).
+    /// Target naming: torch (PyTorch `state_dict` keys of python/pipeline/models.py).
     #[arg(long, value_enum, default_value_t = ExportFormat::Torch)]
     pub format: ExportFormat,
 }

@@ -1,4 +1,4 @@
-//! PyTorch names for our networks: `state_dict` keys of `benches/torch_models.py`'s `UNet(base)`
+//! PyTorch names for our networks: `state_dict` keys of `python/pipeline/models.py`'s `UNet(base)`
 //! and `Shallow(width)`, both ways (the inverse derived from burn's names). `pipeline export` writes them; `--model` reads them back (a
 //! model fine-tuned in PyTorch and saved with `safetensors.torch.save_file`).
 

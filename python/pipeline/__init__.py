@@ -1,0 +1,192 @@
+"""pipeline: motion deblurring with a spatiotemporally phase-coded camera, from Python.
+
+The coded-blur generator of the ``pipeline`` command-line tool as a dataset that streams
+training pairs into a training loop (no shards on disk), the camera's PSFs, and (with torch
+installed) the U-Net and shallow networks with the weights ``pipeline export`` writes.
+
+    from pipeline import CodedBlurDataset
+    ds = CodedBlurDataset(["clips/"], overrides={"transforms.noise.sigma": [0, 9]}, seed=0)
+    for lq, gt, meta in ds:          # lq, gt: float32 (3, 128, 128) in [0, 1], encoded sRGB
+        ...
+
+Only NumPy is required; torch is used when it is installed.
+"""
+
+import importlib.util
+import json
+import os
+
+from . import _native
+from ._native import __version__
+from .safetensors import load_safetensors
+
+__all__ = ["CodedBlurDataset", "psf", "deblur", "to_torch", "load_safetensors", "__version__"]
+
+# CodedBlurDataset is a torch IterableDataset when torch is installed (so DataLoader takes it
+# as one and shards it across its workers), a plain iterable otherwise.
+if importlib.util.find_spec("torch") is not None:
+    from torch.utils.data import IterableDataset as _Base
+else:
+    _Base = object
+
+
+def _toml(value):
+    """A Python value as a TOML literal for a ``--set key=value`` override."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)  # a TOML basic string
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k} = {_toml(v)}" for k, v in value.items()) + "}"
+    raise TypeError(f"override value {value!r}: expected a number, string, bool, list or dict")
+
+
+def _worker():
+    """(worker id, number of workers) of the torch DataLoader worker we run in, else (0, 1)."""
+    if importlib.util.find_spec("torch") is None:
+        return 0, 1
+    from torch.utils.data import get_worker_info
+
+    info = get_worker_info()
+    return (0, 1) if info is None else (info.id, info.num_workers)
+
+
+def _rank():
+    """(rank, world size): torch.distributed when it is initialised, else RANK/WORLD_SIZE, else (0, 1)."""
+    if importlib.util.find_spec("torch") is not None:
+        import torch.distributed as dist
+
+        if dist.is_available() and dist.is_initialized():
+            return dist.get_rank(), dist.get_world_size()
+    return int(os.environ.get("RANK", 0)), int(os.environ.get("WORLD_SIZE", 1))
+
+
+class CodedBlurDataset(_Base):
+    """Coded-blur training pairs made on the fly by the same code as ``pipeline generate``.
+
+    Iterating yields ``(lq, gt, meta)``: ``lq`` the blurred (and noisy) input, ``gt`` the sharp
+    target, both (3, H, W) arrays in [0, 1] (``dtype="float32"``, encoded as the pipeline's
+    curve, sRGB by default) or 0 to 255 (``dtype="uint8"``, exactly the PNG pixels ``pipeline
+    generate`` writes); ``meta`` is the dict the shards carry as ``key.json`` plus ``key``.
+
+    paths:      videos, folders of videos or globs (None: the pipeline file's own paths).
+    config:     a pipeline file (None: the pipelines/generate.toml built into the package).
+    overrides:  ``{"transforms.blur.window": 11, "transforms.noise.sigma": [0, 9]}``, as
+                ``pipeline generate --set``.
+    seed:       the pipeline's seed (None: the file's). The same seed gives the same pairs.
+    on_failure: "raise" (default) stops at an input that cannot be read; "warn" skips it
+                with a warning (pairs it gave before failing are not taken back).
+    rank, world_size: this process's share in distributed training (default: torch.distributed
+                when initialised, else the RANK and WORLD_SIZE variables, else 0 and 1).
+
+    With DataLoader workers started by fork (Linux's default), do not iterate a dataset or call
+    psf() or deblur() in the parent first: a fork copies no threads, and the workers then stop
+    with an error saying so. ``multiprocessing_context="spawn"`` has no such limit.
+
+    Inputs are shared out whole: input i (of the sorted list) goes to task
+    ``i % (world_size * workers)``, where task = rank * workers + DataLoader worker id, as
+    ``pipeline generate --shard-index/--shard-count`` does. So every pair comes exactly once
+    over all ranks and workers; with one worker and one rank, in the order ``pipeline generate``
+    writes them. Tasks beyond the number of inputs get none: give at least as many inputs as
+    ``world_size * num_workers``.
+    """
+
+    def __init__(self, paths=None, config=None, overrides=None, seed=None, dtype="float32", on_failure="raise",
+                 rank=None, world_size=None):
+        if isinstance(paths, (str, os.PathLike)):
+            paths = [paths]
+        self.paths = [os.fspath(p) for p in (paths or [])]
+        self.config = None if config is None else os.fspath(config)
+        self.overrides = dict(overrides or {})
+        if seed is not None:
+            self.overrides["seed"] = int(seed)
+        if dtype not in ("float32", "uint8"):
+            raise ValueError(f"dtype={dtype!r}: expected 'float32' or 'uint8'")
+        self.dtype = dtype
+        self.on_failure = on_failure
+        self.rank, self.world_size = rank, world_size
+        self.failed = []
+        # Check the settings and list the inputs now (every error named, in the caller rather
+        # than in a worker), without starting a thread: DataLoader's forked workers start clean.
+        self._inputs = _native.check(self.paths, self.config, self._sets())
+
+    def _sets(self):
+        return [f"{k}={_toml(v)}" for k, v in self.overrides.items()]
+
+    def _stream(self, index, count):
+        return _native.Stream(self.paths, self.config, self._sets(), index, count, self.dtype == "float32", self.on_failure)
+
+    def task(self):
+        """(task index, task count) of the calling process and DataLoader worker."""
+        worker, workers = _worker()
+        rank, world = _rank()
+        if self.rank is not None:
+            rank = self.rank
+        if self.world_size is not None:
+            world = self.world_size
+        if not 0 <= rank < world:
+            raise ValueError(f"rank {rank} must be below world_size {world}")
+        return rank * workers + worker, world * workers
+
+    def inputs(self):
+        """The inputs the calling process and worker read, in order."""
+        index, count = self.task()
+        return [p for i, p in enumerate(self._inputs) if i % count == index]
+
+    def __iter__(self):
+        stream = self._stream(*self.task())
+        try:
+            for lq, gt, meta in stream:
+                yield lq, gt, json.loads(meta)
+        finally:
+            self.failed = stream.failed
+            stream.close()
+
+
+def psf(camera="phase_coded", psi=None, window=None, config=None, airy_radius_px=None):
+    """The PSF stack ``pipeline psf --out x.npy`` writes: (K, H, W, 3) float32, RGB last.
+
+    psi: defocus values (radians at the pupil rim, 455 nm), a list or ``"start:stop:count"``
+    (default 0:8:9); window: instead, the N sub-frame kernels of one exposure window of
+    ``camera``; config: a TOML file with [optics] / [camera] tables.
+    """
+    if isinstance(psi, str):
+        a, b, n = (float(t) for t in psi.split(":"))
+        n = int(n)
+        psi = [a] if n == 1 else [a + (b - a) * i / (n - 1) for i in range(n)]
+    if psi is not None:
+        psi = [float(p) for p in psi]
+    return _native.psf(camera, psi, window, None if config is None else os.fspath(config), airy_radius_px)
+
+
+def deblur(image, model=None):
+    """Runs a trained network (``pipeline deblur``'s fast CPU path) on one image.
+
+    image: (3, H, W) float32 in [0, 1], encoded sRGB; model: a model file or folder written by
+    ``pipeline train`` or ``pipeline export`` (None: the default coded U-Net). Returns the
+    network's (3, H, W) float32 output, not clamped or quantised.
+    """
+    import numpy as np
+
+    x = np.ascontiguousarray(image, dtype=np.float32)
+    if x.ndim != 3 or x.shape[0] != 3:
+        raise ValueError(f"image of shape {x.shape}: expected (3, H, W)")
+    return _native.deblur(x, None if model is None else os.fspath(model))
+
+
+def to_torch(sample):
+    """A sample (or any nest of tuples, lists and dicts of arrays) with its arrays as torch tensors (no copy)."""
+    import numpy as np
+    import torch
+
+    if isinstance(sample, np.ndarray):
+        return torch.from_numpy(sample)
+    if isinstance(sample, (tuple, list)):
+        return type(sample)(to_torch(s) for s in sample)
+    if isinstance(sample, dict):
+        return {k: to_torch(v) for k, v in sample.items()}
+    return sample

@@ -1,0 +1,290 @@
+//! `pipeline._native`: the Rust side of the Python package. The Python layer
+//! (`python/pipeline/__init__.py`) wraps it; nothing here is meant to be called directly.
+//!
+//! - `Stream`: a pipeline's samples in this process, through the same code `pipeline generate`
+//!   runs ([`pipeline::graph::SampleStream`]), this task's share of the inputs.
+//! - `psf`: the PSF stack `pipeline psf --out x.npy` writes.
+
+use numpy::{IntoPyArray, PyArray3, PyArray4, PyArrayMethods, PyReadonlyArray3, PyUntypedArrayMethods};
+use pipeline::commands::psf::{PsfArgs, PsiList};
+use pipeline::frame::{Pair, Sample};
+use pipeline::graph::{Next, SampleStream};
+use pyo3::exceptions::{PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+use std::collections::VecDeque;
+use std::sync::atomic::{AtomicU32, Ordering};
+use std::time::Duration;
+
+/// The process that started rayon's worker threads (0: none yet).
+static POOL_PID: AtomicU32 = AtomicU32::new(0);
+
+/// Refuses work in a process forked after this library started its threads in the parent (a
+/// fork copies no threads, so rayon's pool would wait forever): a clear error instead of a hang.
+fn fork_guard() -> PyResult<()> {
+    let me = std::process::id();
+    match POOL_PID.compare_exchange(0, me, Ordering::SeqCst, Ordering::SeqCst) {
+        Ok(_) => Ok(()),
+        Err(p) if p == me => Ok(()),
+        Err(p) => Err(PyRuntimeError::new_err(format!(
+            "pipeline: this process was forked from process {p} after pipeline had started its worker threads there, \
+             and a fork copies no threads (the work would wait forever). Start DataLoader workers with \
+             multiprocessing_context=\"spawn\" (or \"forkserver\"), or do not iterate a dataset, call psf() or \
+             deblur() in the parent before the workers start"
+        ))),
+    }
+}
+
+/// The plan `pipeline generate` would run with these arguments, every error named.
+fn plan(paths: &[String], config: Option<&std::path::Path>, sets: &[String]) -> PyResult<pipeline::config::Plan> {
+    let (table, origin) = pipeline::commands::generate::generate_table(config, paths, sets).map_err(value_err)?;
+    pipeline::config::plan_from(table, &origin).map_err(value_err)
+}
+
+/// Checks the settings and lists every input (sorted, as tasks share them out) without
+/// starting a thread, so a DataLoader's forked workers start clean.
+#[pyfunction]
+#[pyo3(signature = (paths, config, sets))]
+fn check(paths: Vec<String>, config: Option<std::path::PathBuf>, sets: Vec<String>) -> PyResult<Vec<String>> {
+    let plan = plan(&paths, config.as_deref(), &sets)?;
+    let inputs = pipeline::graph::list_inputs(&plan).map_err(value_err)?;
+    if inputs.is_empty() {
+        return Err(PyValueError::new_err("no input: the paths name no file the pipeline's source reads"));
+    }
+    Ok(inputs.iter().map(|(i, _)| i.path.clone()).collect())
+}
+
+/// The crate's errors with their whole chain, as Python's ValueError (bad settings, no input)
+/// or RuntimeError (a stage that failed while running).
+fn value_err(e: pipeline::Error) -> PyErr {
+    PyValueError::new_err(chain(&e))
+}
+
+fn chain(e: &dyn std::error::Error) -> String {
+    let mut s = e.to_string();
+    let mut src = e.source();
+    while let Some(c) = src {
+        let m = c.to_string();
+        if !s.contains(&m) {
+            s.push_str(": ");
+            s.push_str(&m);
+        }
+        src = c.source();
+    }
+    s
+}
+
+/// One pair ready for Python: CHW planes (u8, converted to f32 on the Python thread only when
+/// asked) and the sample's JSON.
+struct Ready {
+    w: usize,
+    h: usize,
+    lq: Vec<u8>,
+    gt: Vec<u8>,
+    meta: String,
+}
+
+/// Interleaved RGB8 to planar (CHW).
+fn planar(rgb: &[u8], w: usize, h: usize) -> Vec<u8> {
+    let n = w * h;
+    let mut out = vec![0u8; 3 * n];
+    for (i, px) in rgb.chunks_exact(3).enumerate() {
+        out[i] = px[0];
+        out[n + i] = px[1];
+        out[2 * n + i] = px[2];
+    }
+    out
+}
+
+fn ready(s: &Sample, p: &Pair) -> Ready {
+    let rgb = |img| pipeline::imaging::img_rgb8(img, p.w, p.h, s.curve);
+    let mut meta: serde_json::Value = serde_json::from_slice(&pipeline::stage::shards::meta_json(s, p)).expect("sample json");
+    meta["key"] = pipeline::stage::shards::sample_key(s, p).into();
+    Ready { w: p.w, h: p.h, lq: planar(&rgb(&p.lq), p.w, p.h), gt: planar(&rgb(&p.gt), p.w, p.h), meta: meta.to_string() }
+}
+
+/// The samples of a pipeline over this task's inputs, pair by pair: `(lq, gt, meta_json)`
+/// with `lq`/`gt` as (3, H, W) arrays, uint8 or float32 in [0, 1].
+#[pyclass(module = "pipeline._native")]
+struct Stream {
+    inner: Option<SampleStream>,
+    pending: VecDeque<Ready>,
+    float: bool,
+    raise_on_failure: bool,
+    failed: Vec<(String, String)>,
+    inputs: Vec<String>,
+}
+
+#[pymethods]
+impl Stream {
+    /// paths: videos, folders or globs (empty: the pipeline's own paths); config: a pipeline
+    /// file (None: the embedded pipelines/generate.toml); sets: `key=value` overrides;
+    /// task: (index, count) share of the sorted inputs.
+    #[new]
+    #[pyo3(signature = (paths, config, sets, task_index, task_count, float32 = true, on_failure = "raise"))]
+    fn new(
+        paths: Vec<String>,
+        config: Option<std::path::PathBuf>,
+        sets: Vec<String>,
+        task_index: usize,
+        task_count: usize,
+        float32: bool,
+        on_failure: &str,
+    ) -> PyResult<Stream> {
+        let raise_on_failure = match on_failure {
+            "raise" => true,
+            "warn" => false,
+            o => return Err(PyValueError::new_err(format!("on_failure={o:?}: expected \"raise\" or \"warn\""))),
+        };
+        let plan = plan(&paths, config.as_deref(), &sets)?;
+        fork_guard()?;
+        let inner = SampleStream::open(&plan, (task_index, task_count)).map_err(value_err)?;
+        let inputs = inner.inputs.iter().map(|i| i.path.clone()).collect();
+        Ok(Stream { inner: Some(inner), pending: VecDeque::new(), float: float32, raise_on_failure, failed: Vec::new(), inputs })
+    }
+
+    fn __iter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
+        slf
+    }
+
+    fn __next__<'py>(&mut self, py: Python<'py>) -> PyResult<Option<(Bound<'py, PyAny>, Bound<'py, PyAny>, String)>> {
+        loop {
+            if let Some(r) = self.pending.pop_front() {
+                let (lq, gt) = (self.array(py, r.lq, r.h, r.w)?, self.array(py, r.gt, r.h, r.w)?);
+                return Ok(Some((lq, gt, r.meta)));
+            }
+            let Some(inner) = self.inner.as_mut() else { return Ok(None) };
+            // Wait without the GIL, a tenth of a second at a time, so Ctrl-C reaches Python.
+            let next = py.detach(|| inner.next(Duration::from_millis(100)));
+            match next {
+                Ok(Next::Sample(s)) => self.pending.extend(s.pairs.iter().map(|p| ready(&s, p))),
+                Ok(Next::Failed(path, why)) => {
+                    self.failed.push((path.clone(), why.clone()));
+                    if self.raise_on_failure {
+                        self.inner = None;
+                        return Err(PyRuntimeError::new_err(format!("{path}: {why}")));
+                    }
+                    let warnings = py.import("warnings")?;
+                    warnings.call_method1("warn", (format!("pipeline: input failed, skipped: {path}: {why}"),))?;
+                }
+                Ok(Next::Waiting) => py.check_signals()?,
+                Ok(Next::End) => {
+                    self.inner = None;
+                    return Ok(None);
+                }
+                Err(e) => {
+                    self.inner = None;
+                    return Err(PyRuntimeError::new_err(chain(&e)));
+                }
+            }
+        }
+    }
+
+    /// This task's inputs, in the order they are read.
+    #[getter]
+    fn inputs(&self) -> Vec<String> {
+        self.inputs.clone()
+    }
+
+    /// Inputs that failed so far: (path, reason).
+    #[getter]
+    fn failed(&self) -> Vec<(String, String)> {
+        self.failed.clone()
+    }
+
+    /// Stops every stage now (also done when the stream is garbage-collected).
+    fn close(&mut self) {
+        self.inner = None;
+        self.pending.clear();
+    }
+}
+
+impl Stream {
+    /// A (3, H, W) array that owns the buffer it was made from (no copy for uint8).
+    fn array<'py>(&self, py: Python<'py>, chw: Vec<u8>, h: usize, w: usize) -> PyResult<Bound<'py, PyAny>> {
+        if self.float {
+            let f: Vec<f32> = chw.iter().map(|&v| f32::from(v) / 255.0).collect();
+            Ok(f.into_pyarray(py).reshape([3, h, w])?.into_any())
+        } else {
+            let a: Bound<'py, PyArray3<u8>> = chw.into_pyarray(py).reshape([3, h, w])?;
+            Ok(a.into_any())
+        }
+    }
+}
+
+/// The PSF stack `pipeline psf --out x.npy` writes: (K, H, W, 3) float32, RGB last.
+#[pyfunction]
+#[pyo3(signature = (camera = "phase_coded", psi = None, window = None, config = None, airy_radius_px = None))]
+fn psf<'py>(
+    py: Python<'py>,
+    camera: &str,
+    psi: Option<Vec<f64>>,
+    window: Option<u16>,
+    config: Option<std::path::PathBuf>,
+    airy_radius_px: Option<f64>,
+) -> PyResult<Bound<'py, PyArray4<f32>>> {
+    let kind = serde_json::from_value(serde_json::Value::String(camera.into())).map_err(|_| {
+        PyValueError::new_err(format!("camera {camera:?}: expected phase_coded, conventional, focus_sweep, flutter or parabolic"))
+    })?;
+    if let Some(bad) = psi.iter().flatten().find(|p| !(p.abs() <= 50.0)) {
+        return Err(PyValueError::new_err(format!("psi {bad} is out of range (expected -50 to 50)")));
+    }
+    if window.is_some_and(|n| !(1..=64).contains(&n)) {
+        return Err(PyValueError::new_err("window must be 1 to 64"));
+    }
+    let args = PsfArgs {
+        camera: kind,
+        psi: psi.map(PsiList),
+        window,
+        out: None,
+        config,
+        airy_radius_px,
+        spectrum: None,
+        dispersion: None,
+        defocus_sign: None,
+        zoom: 4,
+    };
+    fork_guard()?;
+    let (shape, data) = py
+        .detach(|| {
+            let (optics, camera, req) = pipeline::commands::psf::resolve(&args)?;
+            let rows = pipeline::commands::psf::compute(&optics, &camera, &req)?;
+            Ok::<_, pipeline::Error>(pipeline::commands::psf::to_hwc(&rows))
+        })
+        .map_err(value_err)?;
+    Ok(data.into_pyarray(py).reshape([shape[0], shape[1], shape[2], shape[3]])?)
+}
+
+/// A trained network (`pipeline deblur`'s fast CPU path) on one (3, H, W) float32 image in
+/// [0, 1]; the raw output (input + residual), not clamped. `model`: a file or folder written by
+/// `pipeline train` or `pipeline export`; None: the embedded default.
+#[pyfunction]
+#[pyo3(signature = (image, model = None))]
+fn deblur<'py>(
+    py: Python<'py>,
+    image: PyReadonlyArray3<'py, f32>,
+    model: Option<std::path::PathBuf>,
+) -> PyResult<Bound<'py, PyArray3<f32>>> {
+    let (c, h, w) = (image.shape()[0], image.shape()[1], image.shape()[2]);
+    if c != 3 {
+        return Err(PyValueError::new_err(format!("image of shape ({c}, {h}, {w}): expected (3, H, W)")));
+    }
+    let data = image.as_slice().map_err(|_| PyValueError::new_err("image must be C-contiguous"))?.to_vec();
+    fork_guard()?;
+    let out = py
+        .detach(|| {
+            let (net, _) = pipeline::model::infer::load(model.as_deref())?;
+            Ok::<_, pipeline::Error>(net.forward(&pipeline::model::fast::T4::new(1, 3, h, w, data)).d)
+        })
+        .map_err(value_err)?;
+    Ok(out.into_pyarray(py).reshape([3, h, w])?)
+}
+
+#[pymodule]
+fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<Stream>()?;
+    m.add_function(wrap_pyfunction!(psf, m)?)?;
+    m.add_function(wrap_pyfunction!(deblur, m)?)?;
+    m.add_function(wrap_pyfunction!(check, m)?)?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    Ok(())
+}

@@ -1,0 +1,73 @@
+import numpy as np
+import pytest
+from PIL import Image
+
+import pipeline
+from conftest import ROOT
+
+
+@pytest.mark.parametrize("args,kwargs", [
+    (["--psi", "0:8:5"], {"psi": "0:8:5"}),
+    (["--psi", "-2,0,3.5"], {"psi": [-2, 0, 3.5], "camera": "conventional"}),
+    (["--window", "9"], {"window": 9}),
+    (["--window", "7", "--camera", "focus_sweep"], {"window": 7, "camera": "focus_sweep"}),
+])
+def test_psf_equals_the_cli_npy(cli, tmp_path, args, kwargs):
+    out = tmp_path / "psf.npy"
+    cam = ["--camera", kwargs["camera"]] if "camera" in kwargs and "--camera" not in args else []
+    cli("psf", *args, *cam, "--out", out)
+    want = np.load(out)
+    got = pipeline.psf(**kwargs)
+    assert got.dtype == np.float32 and got.ndim == 4 and got.shape[-1] == 3
+    np.testing.assert_array_equal(got, want)
+
+
+def test_psf_refuses_bad_values():
+    with pytest.raises(ValueError, match="camera"):
+        pipeline.psf(camera="pinhole")
+    with pytest.raises(ValueError, match="psi 99"):
+        pipeline.psf(psi=[99])
+
+
+def to_8bit(x):
+    """As `pipeline deblur` quantises: clamp, scale by 255 in float32, round half away from zero."""
+    v = np.clip(x, 0, 1).astype(np.float32) * np.float32(255)
+    r = np.rint(v)
+    tie = v - np.floor(v) == 0.5
+    r[tie] = np.floor(v[tie]) + 1
+    return r.astype(np.uint8)
+
+
+def test_deblur_matches_the_cli_and_exported_weights_keep_their_tensors(cli, tmp_path):
+    ds = pipeline.CodedBlurDataset([ROOT / "fixtures" / "mandelbrot-pan-240fps.mp4"],
+                                   overrides={"sources.video.max_frames": 9, "transforms.noise.sigma": 6.0})
+    lq, gt, _ = next(iter(ds))
+    out = pipeline.deblur(lq)
+    assert out.shape == lq.shape and np.isfinite(out).all() and not np.array_equal(out, lq)
+    # The CLI on the same 8-bit image (one tile) gives the same 8-bit output.
+    Image.fromarray(np.rint(lq * 255).astype(np.uint8).transpose(1, 2, 0)).save(tmp_path / "in.png")
+    cli("deblur", tmp_path / "in.png", "-o", tmp_path / "out.png", "--progress", "never")
+    want = np.asarray(Image.open(tmp_path / "out.png")).transpose(2, 0, 1)
+    np.testing.assert_array_equal(to_8bit(out), want)
+    # Exported with PyTorch names: the shipped model's tensors, renamed.
+    cli("export", ROOT / "models" / "unet16-coded", "-o", tmp_path / "unet16.safetensors")
+    tensors, meta = pipeline.load_safetensors(tmp_path / "unet16.safetensors")
+    assert meta["format"] == "pt" and '"base":16' in meta["arch"]
+    assert tensors["inc.a.0.weight"].shape == (16, 3, 3, 3) and tensors["outc.bias"].shape == (3,)
+    # 926,099 learned values plus 1,984 BatchNorm running statistics, as models/README.md counts.
+    assert sum(v.size for k, v in tensors.items() if not k.endswith("num_batches_tracked")) == 928_083
+    assert sum(v.size for k, v in tensors.items() if "running" not in k and "num_batches" not in k) == 926_099
+
+
+def test_exported_model_in_torch_matches_deblur(cli, tmp_path):
+    torch = pytest.importorskip("torch")
+    from pipeline.models import load
+
+    for name in ["unet16-coded", "shallow32-coded"]:
+        path = tmp_path / f"{name}.safetensors"
+        cli("export", ROOT / "models" / name, "-o", path)
+        net = load(path).eval()
+        x = np.random.default_rng(0).random((3, 64, 96), dtype=np.float32)
+        with torch.no_grad():
+            y = net(torch.from_numpy(x)[None])[0].numpy()
+        np.testing.assert_allclose(y, pipeline.deblur(x, model=ROOT / "models" / name), atol=1e-4, err_msg=name)
