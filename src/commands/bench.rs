@@ -224,6 +224,9 @@ fn bench_plan(mode: &str, clip: &std::path::Path, out: &std::path::Path) -> crat
     if mode.contains("conventional") {
         sets.push("transforms.blur.camera.type=\"conventional\"".into());
     }
+    if mode.contains("one transform") {
+        sets.push("transforms.blur.tile=0".into());
+    }
     let mut table = crate::config::parse(super::generate::GENERATE_TOML, "pipelines/generate.toml (embedded)", &[])?;
     if mode.starts_with("full frame") {
         // Drop the patch keys that a noise stage does not have.
@@ -263,9 +266,13 @@ pub fn generate(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> c
     let (ff_med, own_med) = (median(&mut ff), median(&mut own));
     eprintln!("bench: decode only: ffmpeg CLI {ff_med:.0} frames/s, pipeline decoder (with RGB conversion) {own_med:.0} frames/s");
     let mut rows = Vec::new();
-    for (mode, path) in
-        [("full frame", &clip), ("full frame, conventional", &clip), ("patches", &clip), ("patches, clip twice as long", &long)]
-    {
+    for (mode, path) in [
+        ("full frame", &clip),
+        ("full frame, one transform per plane (tile = 0)", &clip),
+        ("full frame, conventional", &clip),
+        ("patches", &clip),
+        ("patches, clip twice as long", &long),
+    ] {
         let mut rates = Vec::new();
         let mut peak = None;
         let mut n_frames = 0;

@@ -37,7 +37,20 @@ pub struct BlurConfig {
     /// (0: exact, one direction per distinct kernel).
     #[serde(default = "default_rank_tolerance")]
     pub rank_tolerance: f64,
+    /// Whole frames are blurred in tiles of this many pixels, each transformed with the kernel
+    /// margin around it (overlap-save: cache-sized FFTs, spread over the cores, memory bounded
+    /// by the tile); 0: one transform over the whole frame. Either equals the direct
+    /// convolution within float rounding. Patch mode ignores it.
+    #[serde(default = "default_tile")]
+    pub tile: usize,
 }
+
+fn default_tile() -> usize {
+    TILE
+}
+
+/// The default `tile` (measured fastest on 720p and 4K, docs in the README's speed table).
+pub const TILE: usize = 256;
 
 fn default_rank_tolerance() -> f64 {
     1e-3
@@ -57,6 +70,9 @@ impl StageConfig for BlurConfig {
         }
         c.range_usize("threads", self.threads, 0, 256);
         c.range("rank_tolerance", self.rank_tolerance, 0.0, 0.1);
+        if self.tile != 0 {
+            c.range_usize("tile", self.tile, 16, 8192);
+        }
         c.errors.extend(self.camera.validate(&format!("{key}.camera")));
         c.errors.extend(self.optics.validate(&format!("{key}.optics")));
         if let Some(v) = &self.camera.psi_values {
@@ -79,7 +95,9 @@ impl StageConfig for BlurConfig {
         let cam = Arc::new(Camera::new(&self.optics, &self.camera));
         let blurrer = Blurrer::new(cam, self.window, self.threads, self.rank_tolerance)?;
         let stride = self.stride.unwrap_or(self.window);
-        Ok(Built::Transform(Box::new(CodedBlur::new(blurrer, stride, ctx.seed, ctx.crop.clone(), ctx.counters.clone()))))
+        let mut t = CodedBlur::new(blurrer, stride, ctx.seed, ctx.crop.clone(), ctx.counters.clone());
+        t.tile = self.tile;
+        Ok(Built::Transform(Box::new(t)))
     }
 }
 
@@ -91,6 +109,8 @@ pub struct CodedBlur {
     /// Patch selector when patches are cut before blurring.
     pub crop_first: Option<Selector>,
     pub counters: Arc<Counters>,
+    /// Tile size of whole-frame blurs (0: one transform), as [`BlurConfig::tile`].
+    pub tile: usize,
     buf: VecDeque<(u64, Arc<Frame>)>,
     next_start: u64,
     window: u64,
@@ -99,7 +119,7 @@ pub struct CodedBlur {
 
 impl CodedBlur {
     pub fn new(blurrer: Blurrer, stride: usize, seed: u64, crop_first: Option<Selector>, counters: Arc<Counters>) -> CodedBlur {
-        CodedBlur { blurrer, stride, seed, crop_first, counters, buf: VecDeque::new(), next_start: 0, window: 0, input: None }
+        CodedBlur { blurrer, stride, seed, crop_first, counters, tile: TILE, buf: VecDeque::new(), next_start: 0, window: 0, input: None }
     }
 
     fn emit_window(&mut self, input: &Arc<Input>, out: &mut Emit) -> StageResult {
@@ -124,7 +144,10 @@ impl CodedBlur {
                     .collect()
             }
             None => {
-                let lq = self.blurrer.blur_region(&frames, 0, 0, w, h);
+                let lq = match self.tile {
+                    0 => self.blurrer.blur_region(&frames, 0, 0, w, h),
+                    t => self.blurrer.blur_tiled(&frames, t),
+                };
                 vec![Pair { patch: None, x: 0, y: 0, w, h, lq: Img::Linear(lq), gt: Img::Linear(mid.linear_crop(0, 0, w, h)) }]
             }
         };
