@@ -224,8 +224,8 @@ fn bench_plan(mode: &str, clip: &std::path::Path, out: &std::path::Path) -> crat
     if mode.contains("conventional") {
         sets.push("transforms.blur.camera.type=\"conventional\"".into());
     }
-    if mode.contains("one transform") {
-        sets.push("transforms.blur.tile=0".into());
+    if mode.contains("tiles") {
+        sets.push("transforms.blur.tile=256".into());
     }
     let mut table = crate::config::parse(super::generate::GENERATE_TOML, "pipelines/generate.toml (embedded)", &[])?;
     if mode.starts_with("full frame") {

@@ -153,9 +153,13 @@ impl Blurrer {
     /// tile is kept, so it equals the whole-frame blur up to float rounding. Tiles are spread over
     /// the workers, each with its own cache-sized transforms and buffers; memory is a few tiles
     /// per worker instead of whole-frame planes per channel and rank. The result does not depend
-    /// on the number of workers.
+    /// on the number of workers. A frame that fits in one tile is one plane, all workers on it.
     pub fn blur_tiled(&mut self, frames: &[Arc<Frame>], tile: usize) -> [Vec<f32>; 3] {
         let (w, h) = (frames[0].width, frames[0].height);
+        if w <= tile && h <= tile {
+            // One tile: the whole plane with every worker on it.
+            return self.blur_region(frames, 0, 0, w, h);
+        }
         let (tw, th) = (tile.clamp(1, w), tile.clamp(1, h));
         let rects: Vec<_> =
             (0..h).step_by(th).flat_map(|y| (0..w).step_by(tw).map(move |x| (x, y, tw.min(w - x), th.min(h - y)))).collect();
