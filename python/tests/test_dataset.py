@@ -83,13 +83,16 @@ def as_list(batch):
 def test_dataloader_workers_when_torch_is_installed(clips):
     torch = pytest.importorskip("torch")
     short = {"sources.video.max_frames": 27, "transforms.patches.per_window": 2}
-    ds = pipeline.CodedBlurDataset([clips], overrides=short)
-    assert isinstance(ds, torch.utils.data.IterableDataset)
-    # spawn: this test process has run the pipeline already (its threads are not forked).
-    loader = torch.utils.data.DataLoader(ds, batch_size=4, num_workers=2, collate_fn=as_list, multiprocessing_context="spawn")
-    seen = [m["key"] for batch in loader for _, _, m in batch]
+    assert isinstance(pipeline.CodedBlurDataset([clips], overrides=short), torch.utils.data.IterableDataset)
+    seen = []
+    for rank in range(2):
+        # Two real DataLoader workers in each of two simulated ranks. spawn: this test process
+        # has run the pipeline already (its threads are not forked).
+        ds = pipeline.CodedBlurDataset([clips], overrides=short, rank=rank, world_size=2)
+        loader = torch.utils.data.DataLoader(ds, batch_size=4, num_workers=2, collate_fn=as_list, multiprocessing_context="spawn")
+        seen += [m["key"] for batch in loader for _, _, m in batch]
     assert sorted(seen) == sorted(keys(pipeline.CodedBlurDataset([clips], overrides=short)))
-    lq, gt, _ = pipeline.to_torch(next(iter(ds)))
+    lq, gt, _ = pipeline.to_torch(next(iter(pipeline.CodedBlurDataset([clips], overrides=short))))
     assert lq.dtype == torch.float32 and lq.shape == (3, 128, 128)
 
 
