@@ -22,14 +22,16 @@ pub enum Cols<'a> {
     Index(&'a [usize]),
 }
 
-fn lut8(curve: Curve) -> &'static [f32] {
-    static T: [std::sync::OnceLock<Vec<f32>>; 3] = [const { std::sync::OnceLock::new() }; 3];
-    T[curve as usize].get_or_init(|| (0..256).map(|v| curve.to_linear(v as f64 / 255.0) as f32).collect())
+/// Tables as fixed-size arrays: a u8 (u16) index is always in range, so the lookups in
+/// [`Frame::linear_row`] carry no bounds check (it was a sixth of patch mode's time).
+fn lut8(curve: Curve) -> &'static [f32; 256] {
+    static T: [std::sync::OnceLock<[f32; 256]>; 3] = [const { std::sync::OnceLock::new() }; 3];
+    T[curve as usize].get_or_init(|| std::array::from_fn(|v| curve.to_linear(v as f64 / 255.0) as f32))
 }
 
-fn lut16(curve: Curve) -> &'static [f32] {
-    static T: [std::sync::OnceLock<Vec<f32>>; 3] = [const { std::sync::OnceLock::new() }; 3];
-    T[curve as usize].get_or_init(|| curve.decode_lut16())
+fn lut16(curve: Curve) -> &'static [f32; 65536] {
+    static T: [std::sync::OnceLock<Box<[f32; 65536]>>; 3] = [const { std::sync::OnceLock::new() }; 3];
+    T[curve as usize].get_or_init(|| curve.decode_lut16().into_boxed_slice().try_into().expect("65536 entries"))
 }
 
 impl Frame {
