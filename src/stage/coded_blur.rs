@@ -113,7 +113,7 @@ pub struct CodedBlur {
     /// Patch selector when patches are cut before blurring.
     pub crop_first: Option<Selector>,
     pub counters: Arc<Counters>,
-    /// Tile size of whole-frame blurs (0: one transform), as [`BlurConfig::tile`].
+    /// Tile size of whole-frame blurs (0: [`auto_tile`]), as [`BlurConfig::tile`].
     pub tile: usize,
     buf: VecDeque<(u64, Arc<Frame>)>,
     next_start: u64,
