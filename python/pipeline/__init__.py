@@ -154,13 +154,10 @@ def psf(camera="phase_coded", psi=None, window=None, config=None, airy_radius_px
     (default 0:8:9); window: instead, the N sub-frame kernels of one exposure window of
     ``camera``; config: a TOML file with [optics] / [camera] tables.
     """
-    if isinstance(psi, str):
-        a, b, n = (float(t) for t in psi.split(":"))
-        n = int(n)
-        psi = [a] if n == 1 else [a + (b - a) * i / (n - 1) for i in range(n)]
-    if psi is not None:
+    spec = psi if isinstance(psi, str) else None  # parsed by the CLI's own parser
+    if psi is not None and spec is None:
         psi = [float(p) for p in psi]
-    return _native.psf(camera, psi, window, None if config is None else os.fspath(config), airy_radius_px)
+    return _native.psf(camera, None if spec else psi, window, None if config is None else os.fspath(config), airy_radius_px, spec)
 
 
 def deblur(image, model=None):

@@ -213,7 +213,7 @@ impl Stream {
 
 /// The PSF stack `pipeline psf --out x.npy` writes: (K, H, W, 3) float32, RGB last.
 #[pyfunction]
-#[pyo3(signature = (camera = "phase_coded", psi = None, window = None, config = None, airy_radius_px = None))]
+#[pyo3(signature = (camera = "phase_coded", psi = None, window = None, config = None, airy_radius_px = None, psi_spec = None))]
 fn psf<'py>(
     py: Python<'py>,
     camera: &str,
@@ -221,7 +221,13 @@ fn psf<'py>(
     window: Option<u16>,
     config: Option<std::path::PathBuf>,
     airy_radius_px: Option<f64>,
+    psi_spec: Option<String>,
 ) -> PyResult<Bound<'py, PyArray4<f32>>> {
+    // "start:stop:count" or "a,b,c", read by the CLI's own parser (same values as --psi).
+    let psi = match psi_spec {
+        Some(s) => Some(pipeline::commands::psf::parse_psi_list(&s).map_err(|e| PyValueError::new_err(format!("psi {s:?}: {e}")))?),
+        None => psi,
+    };
     let kind = serde_json::from_value(serde_json::Value::String(camera.into())).map_err(|_| {
         PyValueError::new_err(format!("camera {camera:?}: expected phase_coded, conventional, focus_sweep, flutter or parabolic"))
     })?;

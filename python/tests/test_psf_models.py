@@ -27,6 +27,8 @@ def test_psf_refuses_bad_values():
         pipeline.psf(camera="pinhole")
     with pytest.raises(ValueError, match="psi 99"):
         pipeline.psf(psi=[99])
+    with pytest.raises(ValueError, match="start:stop:count"):
+        pipeline.psf(psi="0:8")
 
 
 def to_8bit(x):
