@@ -102,6 +102,9 @@ fn ready(s: &Sample, p: &Pair) -> Ready {
     Ready { w: p.w, h: p.h, lq: planar(&rgb(&p.lq), p.w, p.h), gt: planar(&rgb(&p.gt), p.w, p.h), meta: meta.to_string() }
 }
 
+/// `(lq, gt, meta_json)` as `__next__` returns it.
+type PyPair<'py> = (Bound<'py, PyAny>, Bound<'py, PyAny>, String);
+
 /// The samples of a pipeline over this task's inputs, pair by pair: `(lq, gt, meta_json)`
 /// with `lq`/`gt` as (3, H, W) arrays, uint8 or float32 in [0, 1].
 #[pyclass(module = "pipeline._native")]
@@ -146,7 +149,7 @@ impl Stream {
         slf
     }
 
-    fn __next__<'py>(&mut self, py: Python<'py>) -> PyResult<Option<(Bound<'py, PyAny>, Bound<'py, PyAny>, String)>> {
+    fn __next__<'py>(&mut self, py: Python<'py>) -> PyResult<Option<PyPair<'py>>> {
         loop {
             if let Some(r) = self.pending.pop_front() {
                 let (lq, gt) = (self.array(py, r.lq, r.h, r.w)?, self.array(py, r.gt, r.h, r.w)?);
@@ -231,8 +234,8 @@ fn psf<'py>(
     let kind = serde_json::from_value(serde_json::Value::String(camera.into())).map_err(|_| {
         PyValueError::new_err(format!("camera {camera:?}: expected phase_coded, conventional, focus_sweep, flutter or parabolic"))
     })?;
-    if let Some(bad) = psi.iter().flatten().find(|p| !(p.abs() <= 50.0)) {
-        return Err(PyValueError::new_err(format!("psi {bad} is out of range (expected -50 to 50)")));
+    if let Some(v) = &psi {
+        pipeline::commands::psf::check_psi(v).map_err(PyValueError::new_err)?;
     }
     if window.is_some_and(|n| !(1..=64).contains(&n)) {
         return Err(PyValueError::new_err("window must be 1 to 64"));
@@ -257,7 +260,7 @@ fn psf<'py>(
             Ok::<_, pipeline::Error>(pipeline::commands::psf::to_hwc(&rows))
         })
         .map_err(value_err)?;
-    Ok(data.into_pyarray(py).reshape([shape[0], shape[1], shape[2], shape[3]])?)
+    data.into_pyarray(py).reshape([shape[0], shape[1], shape[2], shape[3]])
 }
 
 /// A trained network (`pipeline deblur`'s fast CPU path) on one (3, H, W) float32 image in
@@ -282,7 +285,7 @@ fn deblur<'py>(
             Ok::<_, pipeline::Error>(net.forward(&pipeline::model::fast::T4::new(1, 3, h, w, data)).d)
         })
         .map_err(value_err)?;
-    Ok(out.into_pyarray(py).reshape([3, h, w])?)
+    out.into_pyarray(py).reshape([3, h, w])
 }
 
 #[pymodule]

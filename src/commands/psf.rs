@@ -28,10 +28,19 @@ pub fn parse_psi_list(s: &str) -> std::result::Result<Vec<f64>, String> {
     } else {
         s.split(',').map(num).collect::<std::result::Result<Vec<_>, _>>()?
     };
-    if let Some(bad) = v.iter().find(|p| !(p.abs() <= 50.0)) {
-        return Err(format!("psi {bad} is out of range (expected -50 to 50)"));
-    }
+    check_psi(&v)?;
     Ok(v)
+}
+
+/// psi values must be finite and within -50 to 50.
+///
+/// # Errors
+/// The first value outside, named.
+pub fn check_psi(v: &[f64]) -> std::result::Result<(), String> {
+    match v.iter().find(|p| !p.is_finite() || p.abs() > 50.0) {
+        Some(bad) => Err(format!("psi {bad} is out of range (expected -50 to 50)")),
+        None => Ok(()),
+    }
 }
 
 /// One row of the PSF table.
