@@ -107,8 +107,12 @@ class CodedBlurDataset(_Base):
         if dtype not in ("float32", "uint8"):
             raise ValueError(f"dtype={dtype!r}: expected 'float32' or 'uint8'")
         self.dtype = dtype
+        if on_failure not in ("raise", "warn"):
+            raise ValueError(f"on_failure={on_failure!r}: expected 'raise' or 'warn'")
         self.on_failure = on_failure
         self.rank, self.world_size = rank, world_size
+        # (path, reason) of inputs that failed in the last iteration in this process (a
+        # DataLoader worker's list stays in the worker; its warning reaches the log).
         self.failed = []
         # Check the settings and list the inputs now (every error named, in the caller rather
         # than in a worker), without starting a thread: DataLoader's forked workers start clean.

@@ -101,6 +101,8 @@ def test_bad_settings_and_inputs_are_named(tmp_path, clips):
         pipeline.CodedBlurDataset([FIXTURE], overrides={"transforms.blur.window": "nine"})
     with pytest.raises(ValueError, match="no_such_stage|unknown"):
         pipeline.CodedBlurDataset([FIXTURE], overrides={"transforms.no_such_stage.x": 1})
+    with pytest.raises(ValueError, match="on_failure"):
+        pipeline.CodedBlurDataset([FIXTURE], on_failure="ignore")
     bad = tmp_path / "bad.mp4"
     bad.write_bytes(b"not a video")
     with pytest.raises(RuntimeError, match="bad.mp4"):
