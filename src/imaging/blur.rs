@@ -44,6 +44,8 @@ struct Workspace {
     combined: [Vec<Vec<f32>>; 3],
     /// Products per channel and rank.
     slots: [Vec<Vec<Complex32>>; 3],
+    /// Each channel's inverse transform, `hp x wp` (kept, like the rest, between windows).
+    full: [Vec<f32>; 3],
     /// The extended region (w, h) the combined images last held. Outside it they must be zero:
     /// in exact arithmetic what lies there never reaches the kept pixels, but through the FFT's
     /// rounding it would, so a smaller region after a larger one clears them first (the result
@@ -121,9 +123,10 @@ impl Blurrer {
 
     fn workspace(ranks: [usize; 3], hp: usize, wp: usize) -> Workspace {
         Workspace {
-            // Zero once: the padding beyond the region is never written afterwards.
+            // Zeroed here, and again when a smaller region follows a larger one (`extent`).
             combined: std::array::from_fn(|c| (0..ranks[c]).map(|_| vec![0.0f32; hp * wp]).collect()),
             slots: std::array::from_fn(|c| (0..ranks[c]).map(|_| vec![Complex32::new(0.0, 0.0); hp * (wp / 2 + 1)]).collect()),
+            full: std::array::from_fn(|_| vec![0.0f32; hp * wp]),
             extent: (0, 0),
         }
     }
@@ -231,10 +234,7 @@ fn blur_core(
     region: (isize, isize, usize, usize),
 ) -> [Vec<f32>; 3] {
     let (x0, y0, rw, rh) = region;
-    let (hp, wp) = {
-        let c = convs[0].lock().expect("conv");
-        (c.hp, c.wp)
-    };
+    let wp = convs[0].lock().expect("conv").wp;
     let (fw, fh) = (frames[0].width, frames[0].height);
     let (ew, eh) = (rw + 2 * m, rh + 2 * m);
     let (ex, ey) = (x0 - m as isize, y0 - m as isize);
@@ -305,13 +305,12 @@ fn blur_core(
     }
     // Phase 3: sum the ranks in order (deterministic), one inverse per channel.
     // The slots are overwritten every window, so the ranks are summed into slot 0 in place.
-    let phase3 = |ranks: &mut Vec<Vec<Complex32>>| -> Vec<f32> {
-        let mut full = vec![0.0f32; hp * wp];
+    let phase3 = |(ranks, full): (&mut Vec<Vec<Complex32>>, &mut Vec<f32>)| -> Vec<f32> {
         let (first, rest) = ranks.split_first_mut().expect("rank 0");
         for slot in rest.iter() {
             mul_acc_add(first, slot);
         }
-        worker(convs).lock().expect("conv lock").inverse(first, &mut full);
+        worker(convs).lock().expect("conv lock").inverse(first, full);
         let mut o = Vec::with_capacity(rw * rh);
         for y in 0..rh {
             o.extend_from_slice(&full[(y + m) * wp + m..(y + m) * wp + m + rw]);
@@ -320,9 +319,9 @@ fn blur_core(
     };
     let outs: Vec<Vec<f32>> = if parallel {
         use rayon::prelude::*;
-        ws.slots.par_iter_mut().map(phase3).collect()
+        ws.slots.par_iter_mut().zip(ws.full.par_iter_mut()).map(phase3).collect()
     } else {
-        ws.slots.iter_mut().map(phase3).collect()
+        ws.slots.iter_mut().zip(ws.full.iter_mut()).map(phase3).collect()
     };
     let mut it = outs.into_iter();
     std::array::from_fn(|_| it.next().expect("3 channels"))

@@ -128,46 +128,53 @@ impl Frames {
             ImageFormat::Png => "png",
             ImageFormat::Exr => "exr",
         };
-        // (folder, file name, image) of every file this pair is written to.
-        let files: Vec<(PathBuf, String, &Img)> = match self.layout {
+        // Each image once, with every (folder, file name) it is written to (GoPro's `blur` and
+        // `blur_gamma` hold the same encoded bytes).
+        let files: [(&Img, Vec<(PathBuf, String)>); 2] = match self.layout {
             Layout::Folders => {
                 let base = self.dir.join(&s.input.key);
                 let (lq_dir, gt_dir) = if ext == "png" { ("blur_gamma", "sharp") } else { ("blur_linear", "sharp_linear") };
-                vec![(base.join(lq_dir), format!("{name}.{ext}"), &p.lq), (base.join(gt_dir), format!("{name}.{ext}"), &p.gt)]
+                [(&p.lq, vec![(base.join(lq_dir), format!("{name}.{ext}"))]), (&p.gt, vec![(base.join(gt_dir), format!("{name}.{ext}"))])]
             }
             Layout::Gopro => {
                 let base = self.dir.join(self.split(s)).join(&s.input.key);
-                ["blur", "blur_gamma"]
-                    .iter()
-                    .map(|d| (base.join(d), format!("{name}.png"), &p.lq))
-                    .chain(std::iter::once((base.join("sharp"), format!("{name}.png"), &p.gt)))
-                    .collect()
+                let file = format!("{name}.png");
+                [
+                    (&p.lq, vec![(base.join("blur"), file.clone()), (base.join("blur_gamma"), file.clone())]),
+                    (&p.gt, vec![(base.join("sharp"), file)]),
+                ]
             }
             Layout::Basicsr => {
                 let split = self.split(s);
                 let base = self.dir.join(split);
                 let file = format!("{}_{name}.png", s.input.key);
                 self.meta.push((split, format!("{file} ({},{},3)", p.h, p.w)));
-                vec![(base.join("lq"), file.clone(), &p.lq), (base.join("gt"), file, &p.gt)]
+                [(&p.lq, vec![(base.join("lq"), file.clone())]), (&p.gt, vec![(base.join("gt"), file)])]
             }
         };
-        for (d, file, img) in files {
-            std::fs::create_dir_all(&d).map_err(|e| crate::Error::Io { path: d.clone(), cause: e })?;
-            let path = d.join(file);
-            match self.format {
-                ImageFormat::Png => {
-                    let bytes = png_bytes(img, p.w, p.h, s.curve);
-                    write_atomic(&path, |w| w.write_all(&bytes))?;
-                }
+        for (img, places) in files {
+            let bytes = match self.format {
+                ImageFormat::Png => png_bytes(img, p.w, p.h, s.curve),
                 ImageFormat::Exr => {
-                    let lin: [Vec<f32>; 3] = match img {
-                        Img::Linear(l) => l.clone(),
-                        Img::Encoded8(v) => crate::imaging::from_8bit(v, p.w, p.h, s.curve),
+                    let converted;
+                    let lin = match img {
+                        Img::Linear(l) => l,
+                        Img::Encoded8(v) => {
+                            converted = crate::imaging::from_8bit(v, p.w, p.h, s.curve);
+                            &converted
+                        }
                     };
-                    write_atomic(&path, |w| exr::write_rgb_f32(w, p.w, p.h, [&lin[0], &lin[1], &lin[2]]))?;
+                    let mut b = Vec::new();
+                    exr::write_rgb_f32(&mut b, p.w, p.h, [&lin[0], &lin[1], &lin[2]]).expect("EXR into memory");
+                    b
                 }
+            };
+            for (d, file) in places {
+                std::fs::create_dir_all(&d).map_err(|e| crate::Error::Io { path: d.clone(), cause: e })?;
+                let path = d.join(file);
+                write_atomic(&path, |w| w.write_all(&bytes))?;
+                self.written.push(path);
             }
-            self.written.push(path);
         }
         Ok(())
     }
