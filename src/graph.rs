@@ -455,8 +455,6 @@ pub struct SampleStream {
     stop: Arc<AtomicBool>,
     first: FirstError,
     handles: Vec<std::thread::JoinHandle<StageReport>>,
-    /// This task's inputs, in the order they are read.
-    pub inputs: Vec<Arc<Input>>,
 }
 
 /// What [`SampleStream::next`] found.
@@ -484,18 +482,17 @@ impl SampleStream {
             return Err(Error::Usage("no input: the paths name no file the source reads".into()));
         }
         let selected: Vec<_> = all.into_iter().filter(|(i, _)| i.index % task.1 == task.0).collect();
+        let stop = Arc::new(AtomicBool::new(false));
+        let first: FirstError = Arc::new(Mutex::new(None));
+        if selected.is_empty() {
+            // Nothing for this task (more tasks than inputs): an empty stream, nothing built.
+            return Ok(SampleStream { rx: None, stop, first, handles: Vec::new() });
+        }
         let counters = Arc::new(Counters::default());
         let settings = content_hash(&plan.resolved);
         let stages = build(plan, &selected, &counters, &plan.out_dir(), task, &settings, false)?;
-        let stop = Arc::new(AtomicBool::new(false));
-        let first: FirstError = Arc::new(Mutex::new(None));
-        let inputs = selected.iter().map(|(i, _)| i.clone()).collect();
-        if selected.is_empty() {
-            // Nothing for this task (more tasks than inputs): an empty stream.
-            return Ok(SampleStream { rx: None, stop, first, handles: Vec::new(), inputs });
-        }
         let (rx, handles) = start(stages.source, stages.transforms, plan.run.channel_capacity, &stop, &first);
-        Ok(SampleStream { rx: Some(rx), stop, first, handles, inputs })
+        Ok(SampleStream { rx: Some(rx), stop, first, handles })
     }
 
     /// The next sample or failed input, waiting at most `timeout`.

@@ -144,8 +144,10 @@ class CodedBlurDataset(_Base):
     def __iter__(self):
         stream = self._stream(*self.task())
         try:
-            for lq, gt, meta in stream:
-                yield lq, gt, json.loads(meta)
+            for lq, gt, key, meta in stream:
+                m = json.loads(meta)
+                m["key"] = key
+                yield lq, gt, m
         finally:
             self.failed = stream.failed
             stream.close()
@@ -168,7 +170,8 @@ def deblur(image, model=None):
     """Runs a trained network (``pipeline deblur``'s fast CPU path) on one image.
 
     image: (3, H, W) float32 in [0, 1], encoded sRGB; model: a model file or folder written by
-    ``pipeline train`` or ``pipeline export`` (None: the default coded U-Net). Returns the
+    ``pipeline train`` or ``pipeline export`` (None: the default coded U-Net; the last model used
+    stays loaded, so a file rewritten under the same path is not read again). Returns the
     network's (3, H, W) float32 output, not clamped or quantised.
     """
     import numpy as np

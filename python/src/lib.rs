@@ -53,24 +53,14 @@ fn check(paths: Vec<String>, config: Option<std::path::PathBuf>, sets: Vec<Strin
     Ok(inputs.iter().map(|(i, _)| i.path.clone()).collect())
 }
 
-/// The crate's errors with their whole chain, as Python's ValueError (bad settings, no input)
-/// or RuntimeError (a stage that failed while running).
-fn value_err(e: pipeline::Error) -> PyErr {
-    PyValueError::new_err(chain(&e))
+/// The crate's error with its whole chain, as the CLI prints it (`{:#}`).
+fn chain(e: pipeline::Error) -> String {
+    format!("{:#}", anyhow::Error::from(e))
 }
 
-fn chain(e: &dyn std::error::Error) -> String {
-    let mut s = e.to_string();
-    let mut src = e.source();
-    while let Some(c) = src {
-        let m = c.to_string();
-        if !s.contains(&m) {
-            s.push_str(": ");
-            s.push_str(&m);
-        }
-        src = c.source();
-    }
-    s
+/// Bad settings, no input: Python's ValueError.
+fn value_err(e: pipeline::Error) -> PyErr {
+    PyValueError::new_err(chain(e))
 }
 
 /// One pair ready for Python: CHW planes (u8, converted to f32 on the Python thread only when
@@ -80,6 +70,8 @@ struct Ready {
     h: usize,
     lq: Vec<u8>,
     gt: Vec<u8>,
+    /// The sample's key and its `key.json` text.
+    key: String,
     meta: String,
 }
 
@@ -97,15 +89,21 @@ fn planar(rgb: &[u8], w: usize, h: usize) -> Vec<u8> {
 
 fn ready(s: &Sample, p: &Pair) -> Ready {
     let rgb = |img| pipeline::imaging::img_rgb8(img, p.w, p.h, s.curve);
-    let mut meta: serde_json::Value = serde_json::from_slice(&pipeline::stage::shards::meta_json(s, p)).expect("sample json");
-    meta["key"] = pipeline::stage::shards::sample_key(s, p).into();
-    Ready { w: p.w, h: p.h, lq: planar(&rgb(&p.lq), p.w, p.h), gt: planar(&rgb(&p.gt), p.w, p.h), meta: meta.to_string() }
+    let (key, meta) = (pipeline::stage::shards::sample_key(s, p), pipeline::stage::shards::meta_json(s, p));
+    Ready {
+        w: p.w,
+        h: p.h,
+        lq: planar(&rgb(&p.lq), p.w, p.h),
+        gt: planar(&rgb(&p.gt), p.w, p.h),
+        key,
+        meta: String::from_utf8(meta).expect("JSON is UTF-8"),
+    }
 }
 
-/// `(lq, gt, meta_json)` as `__next__` returns it.
-type PyPair<'py> = (Bound<'py, PyAny>, Bound<'py, PyAny>, String);
+/// `(lq, gt, key, meta_json)` as `__next__` returns it.
+type PyPair<'py> = (Bound<'py, PyAny>, Bound<'py, PyAny>, String, String);
 
-/// The samples of a pipeline over this task's inputs, pair by pair: `(lq, gt, meta_json)`
+/// The samples of a pipeline over this task's inputs, pair by pair: `(lq, gt, key, meta_json)`
 /// with `lq`/`gt` as (3, H, W) arrays, uint8 or float32 in [0, 1].
 #[pyclass(module = "pipeline._native")]
 struct Stream {
@@ -114,7 +112,6 @@ struct Stream {
     float: bool,
     raise_on_failure: bool,
     failed: Vec<(String, String)>,
-    inputs: Vec<String>,
 }
 
 #[pymethods]
@@ -141,8 +138,7 @@ impl Stream {
         let plan = plan(&paths, config.as_deref(), &sets)?;
         fork_guard()?;
         let inner = SampleStream::open(&plan, (task_index, task_count)).map_err(value_err)?;
-        let inputs = inner.inputs.iter().map(|i| i.path.clone()).collect();
-        Ok(Stream { inner: Some(inner), pending: VecDeque::new(), float: float32, raise_on_failure, failed: Vec::new(), inputs })
+        Ok(Stream { inner: Some(inner), pending: VecDeque::new(), float: float32, raise_on_failure, failed: Vec::new() })
     }
 
     fn __iter__(slf: PyRef<'_, Self>) -> PyRef<'_, Self> {
@@ -153,7 +149,7 @@ impl Stream {
         loop {
             if let Some(r) = self.pending.pop_front() {
                 let (lq, gt) = (self.array(py, r.lq, r.h, r.w)?, self.array(py, r.gt, r.h, r.w)?);
-                return Ok(Some((lq, gt, r.meta)));
+                return Ok(Some((lq, gt, r.key, r.meta)));
             }
             let Some(inner) = self.inner.as_mut() else { return Ok(None) };
             // Wait without the GIL, a tenth of a second at a time, so Ctrl-C reaches Python.
@@ -176,16 +172,10 @@ impl Stream {
                 }
                 Err(e) => {
                     self.inner = None;
-                    return Err(PyRuntimeError::new_err(chain(&e)));
+                    return Err(PyRuntimeError::new_err(chain(e)));
                 }
             }
         }
-    }
-
-    /// This task's inputs, in the order they are read.
-    #[getter]
-    fn inputs(&self) -> Vec<String> {
-        self.inputs.clone()
     }
 
     /// Inputs that failed so far: (path, reason).
@@ -231,15 +221,8 @@ fn psf<'py>(
         Some(s) => Some(pipeline::commands::psf::parse_psi_list(&s).map_err(|e| PyValueError::new_err(format!("psi {s:?}: {e}")))?),
         None => psi,
     };
-    let kind = serde_json::from_value(serde_json::Value::String(camera.into())).map_err(|_| {
-        PyValueError::new_err(format!("camera {camera:?}: expected phase_coded, conventional, focus_sweep, flutter or parabolic"))
-    })?;
-    if let Some(v) = &psi {
-        pipeline::commands::psf::check_psi(v).map_err(PyValueError::new_err)?;
-    }
-    if window.is_some_and(|n| !(1..=64).contains(&n)) {
-        return Err(PyValueError::new_err("window must be 1 to 64"));
-    }
+    let kind = serde_json::from_value(serde_json::Value::String(camera.into()))
+        .map_err(|e| PyValueError::new_err(format!("camera {camera:?}: {e}")))?;
     let args = PsfArgs {
         camera: kind,
         psi: psi.map(PsiList),
@@ -281,7 +264,20 @@ fn deblur<'py>(
     fork_guard()?;
     let out = py
         .detach(|| {
-            let (net, _) = pipeline::model::infer::load(model.as_deref())?;
+            // The last model stays loaded: deblurring image after image does not reload it.
+            static LAST: std::sync::Mutex<Option<(Option<std::path::PathBuf>, std::sync::Arc<pipeline::model::fast::FastNet>)>> =
+                std::sync::Mutex::new(None);
+            let net = {
+                let mut last = LAST.lock().expect("model cache");
+                match &*last {
+                    Some((p, net)) if *p == model => net.clone(),
+                    _ => {
+                        let net = std::sync::Arc::new(pipeline::model::infer::load(model.as_deref())?.0);
+                        *last = Some((model.clone(), net.clone()));
+                        net
+                    }
+                }
+            };
             Ok::<_, pipeline::Error>(net.forward(&pipeline::model::fast::T4::new(1, 3, h, w, data)).d)
         })
         .map_err(value_err)?;

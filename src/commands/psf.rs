@@ -357,6 +357,13 @@ pub fn resolve(a: &PsfArgs) -> crate::Result<(OpticsConfig, CameraConfig, PsfReq
     if !errs.is_empty() {
         return Err(crate::Error::Config(errs));
     }
+    // clap checks these on the command line; the Python psf() fills PsfArgs directly.
+    if let Some(p) = &a.psi {
+        check_psi(&p.0).map_err(Error::Usage)?;
+    }
+    if a.window.is_some_and(|n| !(1..=64).contains(&n)) {
+        return Err(Error::Usage(format!("window {} must be 1 to 64", a.window.unwrap_or(0))));
+    }
     let req = match (&a.psi, a.window) {
         (Some(p), None) => PsfRequest::Psi(p.0.clone()),
         (None, Some(n)) => PsfRequest::Window(n as usize),
