@@ -20,6 +20,9 @@ pub struct TrainerSinkConfig {
     /// Output folder: checkpoints, report.json, curves.png.
     pub dir: String,
     pub model: Arch,
+    /// Start from this model's weights (as the training file's `init`).
+    #[serde(default)]
+    pub init: Option<String>,
     #[serde(default)]
     pub optim: OptimConfig,
     #[serde(default)]
@@ -63,6 +66,7 @@ impl TrainerSinkConfig {
         TrainConfig {
             seed,
             model: self.model,
+            init: self.init.clone(),
             data: DataConfig {
                 shards: vec!["(stream)".into()],
                 val_fraction: self.val_fraction,

@@ -112,6 +112,12 @@ pub struct TrainConfig {
     #[serde(default)]
     pub seed: u64,
     pub model: Arch,
+    /// Start from the weights of this model (a model folder as shipped in `models/`, or a
+    /// `.safetensors` file) instead of fresh ones, with a fresh optimizer: fine-tuning. A folder
+    /// with a `report.json` also hands over its step count and history, so `optim.steps` counts
+    /// the whole training and the schedule and curves continue where it stopped.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub init: Option<String>,
     pub data: DataConfig,
     #[serde(default)]
     pub optim: OptimConfig,

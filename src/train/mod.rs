@@ -20,7 +20,7 @@ use burn::nn::loss::{HuberLossConfig, Reduction};
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::{Device, Tensor};
 use serde::{Deserialize, Serialize};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 mod config;
@@ -335,6 +335,36 @@ impl Trainer {
         let mut optim_bytes = None;
         let mut start = 0;
         let mut history: (Vec<LossPoint>, Vec<ValPoint>) = (Vec::new(), Vec::new());
+        // The history of the steps before `start`, from a report.json of the run that wrote them.
+        #[derive(Deserialize)]
+        struct History {
+            steps: usize,
+            loss: Vec<LossPoint>,
+            validation: Vec<ValPoint>,
+        }
+        let read_history = |p: &Path| -> Option<History> { std::fs::read(p).ok().and_then(|b| serde_json::from_slice(&b).ok()) };
+        if let (Some(init), false) = (&cfg.init, opts.resume) {
+            let path = Path::new(init);
+            let (net, arch) = load_model(path, &device).map_err(|e| Error::Invalid(format!("init: {e}")))?;
+            if arch != cfg.model {
+                return Err(Error::Invalid(format!(
+                    "init: {init} holds a {} model, the config's model is {}",
+                    arch.name(),
+                    cfg.model.name()
+                )));
+            }
+            model = net;
+            if let Some(h) = path.is_dir().then(|| read_history(&path.join("report.json"))).flatten() {
+                if h.steps >= cfg.optim.steps {
+                    return Err(Error::Invalid(format!(
+                        "optim.steps = {} counts the whole training, and {init} was trained for {} steps already: set it higher",
+                        cfg.optim.steps, h.steps
+                    )));
+                }
+                start = h.steps;
+                history = (h.loss, h.validation);
+            }
+        }
         if opts.resume {
             let lp = dir.join("latest.json");
             let latest: Latest = serde_json::from_slice(&std::fs::read(&lp).map_err(|e| Error::Io { path: lp.clone(), cause: e })?)
@@ -350,15 +380,8 @@ impl Trainer {
             let op = dir.join(&latest.optimizer);
             optim_bytes = Some((op.clone(), std::fs::read(&op).map_err(|e| Error::Io { path: op, cause: e })?));
             start = latest.step;
-            // The history of the steps before the checkpoint, from the report of the run that
-            // wrote it (a run stopped before writing one resumes without it).
-            #[derive(Deserialize)]
-            struct History {
-                loss: Vec<LossPoint>,
-                validation: Vec<ValPoint>,
-            }
-            let old: Option<History> = std::fs::read(dir.join("report.json")).ok().and_then(|b| serde_json::from_slice(&b).ok());
-            if let Some(mut h) = old {
+            // A run stopped before writing its report resumes without the history.
+            if let Some(mut h) = read_history(&dir.join("report.json")) {
                 h.loss.retain(|p| p.step <= start);
                 h.validation.retain(|p| p.step <= start);
                 history = (h.loss, h.validation);

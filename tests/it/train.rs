@@ -140,6 +140,68 @@ fn save_then_load_gives_identical_outputs_and_resume_matches_an_uninterrupted_ru
     assert!(oa.iter().zip(&x).any(|(p, q)| (p - q).abs() > 1e-4));
 }
 
+/// The convolution weights of a model file, in visiting order (not BatchNorm's running
+/// statistics, which a training step moves whatever the learning rate).
+fn weights(path: &Path) -> Vec<f32> {
+    struct All(Vec<f32>);
+    impl burn::module::ModuleVisitor for All {
+        fn visit_float<const D: usize>(&mut self, p: &burn::module::Param<Tensor<D>>) {
+            if D == 4 {
+                self.0.extend(p.val().into_data().try_to_vec::<f32>().unwrap());
+            }
+        }
+    }
+    let (m, _) = load_model(path, &Device::flex()).unwrap();
+    let mut all = All(Vec::new());
+    m.visit(&mut all);
+    all.0
+}
+
+#[test]
+fn fine_tuning_starts_from_the_init_models_weights_step_and_history() {
+    let shards = tiny_shards("train_init_shards");
+    let (a, b) = (scratch("train_init_a"), scratch("train_init_b"));
+    let mut ca = config(&shards, &a, "");
+    ca.optim.steps = 6;
+    let ra = train(&ca, &opts(None, false)).unwrap();
+    // A model folder as shipped: model.safetensors beside report.json.
+    std::fs::copy(a.join("model-0000006.safetensors"), a.join("model.safetensors")).unwrap();
+    let mut cb = config(&shards, &b, "");
+    cb.init = Some(a.display().to_string());
+    cb.optim.steps = 8;
+    cb.optim.lr = 1e-8;
+    cb.optim.warmup_steps = 0;
+    let rb = train(&cb, &opts(None, false)).unwrap();
+    // The step count and the history continue the init model's.
+    assert_eq!(rb.loss.iter().map(|p| p.step).collect::<Vec<_>>(), (1..=8).collect::<Vec<_>>());
+    for (p, q) in ra.loss.iter().zip(&rb.loss) {
+        assert!((p.loss - q.loss).abs() <= 1e-12 * p.loss.abs(), "step {}: {} vs {}", p.step, p.loss, q.loss);
+    }
+    assert!(!b.join("model-0000006.safetensors").exists() && b.join("model-0000008.safetensors").exists());
+    // Two steps at lr 1e-8 leave the init weights, far from a fresh model's.
+    let (wa, wb) = (weights(&a.join("model.safetensors")), weights(&b.join("model-0000008.safetensors")));
+    assert_eq!(wa.len(), wb.len());
+    let worst = wa.iter().zip(&wb).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+    assert!(worst < 1e-5, "fine-tuned weights moved by {worst}");
+    let fresh = scratch("train_init_fresh");
+    let mut cf = config(&shards, &fresh, "");
+    cf.optim.steps = 1;
+    cf.optim.lr = 1e-8;
+    train(&cf, &opts(None, false)).unwrap();
+    let wf = weights(&fresh.join("model-0000001.safetensors"));
+    assert!(wa.iter().zip(&wf).any(|(x, y)| (x - y).abs() > 1e-3), "the fresh model is the init model");
+    // A model of another shape, or a step count the init model has already reached, is refused by key.
+    let mut bad = config(&shards, &scratch("train_init_bad"), "");
+    bad.init = Some(a.display().to_string());
+    bad.model = pipeline::model::Arch::Shallow { width: 4 };
+    let e = train(&bad, &opts(None, false)).unwrap_err().to_string();
+    assert!(e.contains("init") && e.contains("shallow-8") && e.contains("shallow-4"), "{e}");
+    bad.model = ca.model;
+    bad.optim.steps = 6;
+    let e = train(&bad, &opts(None, false)).unwrap_err().to_string();
+    assert!(e.contains("optim.steps") && e.contains("6 steps"), "{e}");
+}
+
 #[test]
 fn bad_shards_and_bad_model_files_are_named() {
     let d = scratch("train_bad");
