@@ -43,13 +43,15 @@ done
 "$PIPELINE" run pipelines/train-data.toml -o "$OUT/coded" --set "sources.stills.paths=[\"$OUT/photos/train\"]"
 "$PIPELINE" run pipelines/train-data.toml -o "$OUT/conventional" --set "sources.stills.paths=[\"$OUT/photos/train\"]" \
   --set transforms.blur.camera.type=conventional
-# Windows of 7, 11 and 13 frames too (the U-Net 32 runs, models/README.md): 8 windows per clip,
-# a seed of their own per N (other motions), the same for both cameras; 7,200 pairs each.
+# Windows of 7, 11 and 13 frames too (models/README.md): $WINDOWS windows per clip (8 for the U-Net 32
+# runs, 7,200 pairs each; 4 for the fine-tuning of the shipped models, 3,600), a seed of their own per
+# N (other motions), the same for both cameras.
+WINDOWS=${WINDOWS:-8}
 for n in 7 11 13; do
   for cam in phase_coded conventional; do
     d="$OUT/conventional-n$n"; [ $cam = phase_coded ] && d="$OUT/coded-n$n"
     "$PIPELINE" run pipelines/train-data.toml -o "$d" --set "sources.stills.paths=[\"$OUT/photos/train\"]" \
-      --set seed=$((11 + n)) --set sources.stills.frames=$((8 * n)) --set transforms.blur.window=$n \
+      --set seed=$((11 + n)) --set sources.stills.frames=$((WINDOWS * n)) --set transforms.blur.window=$n \
       --set transforms.blur.camera.type=$cam --set sinks.shards.prefix=n$n
   done
 done
