@@ -10,5 +10,6 @@ pub mod tar;
 #[cfg(feature = "ffmpeg")]
 pub mod video;
 pub mod wds;
+pub mod yuv;
 
 pub use atomic::{host, remove_stale, temp_name, temp_path, write_atomic};

@@ -32,6 +32,37 @@ pub struct VideoReader {
     /// The source is floating point (OpenEXR, float TIFF): frames come as linear-light
     /// `FrameData::Planar` floats, not clipped or encoded.
     pub float: bool,
+    /// Convert every frame with swscale, also the 8-bit Y'CbCr formats [`crate::io::yuv`]
+    /// converts by default (the reference the tests compare that path with).
+    pub force_swscale: bool,
+}
+
+/// The 8-bit planar Y'CbCr formats [`crate::io::yuv`] converts: chroma subsampling (log2 per
+/// axis) and whether the format itself says full range.
+fn fast_yuv(p: ff::format::Pixel) -> Option<(u32, u32, bool)> {
+    use ff::format::Pixel as P;
+    match p {
+        P::YUV420P => Some((1, 1, false)),
+        P::YUVJ420P => Some((1, 1, true)),
+        P::YUV422P => Some((1, 0, false)),
+        P::YUVJ422P => Some((1, 0, true)),
+        P::YUV444P => Some((0, 0, false)),
+        P::YUVJ444P => Some((0, 0, true)),
+        _ => None,
+    }
+}
+
+/// The Y'CbCr matrix a frame says it uses (BT.601 when it says nothing), as [`set_colorspace`]
+/// tells swscale.
+fn matrix_of(frame: &ff::frame::Video) -> crate::io::yuv::Matrix {
+    use crate::io::yuv::Matrix;
+    match frame.color_space() {
+        ff::color::Space::BT709 => Matrix::BT709,
+        ff::color::Space::BT2020NCL | ff::color::Space::BT2020CL => Matrix::BT2020,
+        ff::color::Space::SMPTE240M => Matrix::SMPTE240M,
+        ff::color::Space::FCC => Matrix::FCC,
+        _ => Matrix::BT601,
+    }
 }
 
 /// Whether a pixel format stores floats.
@@ -114,12 +145,26 @@ impl VideoReader {
             bit_depth,
             rate: (rate.numerator(), rate.denominator()),
             float,
+            force_swscale: false,
         })
     }
 
     fn convert(&mut self) -> Result<Frame, String> {
         let (w, h) = (self.decoded.width(), self.decoded.height());
         let deep = self.bit_depth > 8;
+        if let Some((sx, sy, full)) = fast_yuv(self.decoded.format()).filter(|_| !self.force_swscale) {
+            // 8-bit Y'CbCr: converted here, straight into the frame's planes.
+            use crate::io::yuv::{Converter, Plane};
+            let full = full || self.decoded.color_range() == ff::color::Range::JPEG;
+            let conv = Converter::new(matrix_of(&self.decoded), full, sx, sy);
+            let (w, h) = (w as usize, h as usize);
+            let mut planes: [Vec<u8>; 3] = std::array::from_fn(|_| vec![0u8; w * h]);
+            let d = &self.decoded;
+            let plane = |i: usize| Plane { data: d.data(i), stride: d.stride(i) };
+            let [r, g, b] = &mut planes;
+            conv.convert(plane(0), plane(1), plane(2), w, h, [r, g, b]);
+            return Ok(Frame::new(w, h, FrameData::Planar8(planes)));
+        }
         // Planar G, B, R straight from swscale: no interleaving to undo later.
         let target = if self.float {
             ff::format::Pixel::GBRPF32LE

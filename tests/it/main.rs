@@ -2,6 +2,7 @@
 
 mod bad_input;
 mod common;
+mod decode;
 #[cfg(feature = "train")]
 mod deblur;
 #[cfg(feature = "train")]
