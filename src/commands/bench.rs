@@ -190,7 +190,15 @@ fn make_clip(path: &std::path::Path, w: usize, h: usize, fps: u32, seconds: f64)
 
 #[cfg(feature = "ffmpeg")]
 fn own_decode_fps(path: &std::path::Path) -> crate::Result<(f64, u64)> {
+    own_decode_fps_with(path, false)
+}
+
+/// Frames/s of the pipeline's decoder (decode + RGB planes); `swscale`: with swscale's
+/// conversion instead of its own (the path before it had one).
+#[cfg(feature = "ffmpeg")]
+fn own_decode_fps_with(path: &std::path::Path, swscale: bool) -> crate::Result<(f64, u64)> {
     let mut r = crate::io::video::VideoReader::open(path).map_err(|e| crate::Error::Invalid(format!("{}: {e}", path.display())))?;
+    r.force_swscale = swscale;
     let t = Instant::now();
     let mut n = 0u64;
     while r.next_frame().map_err(crate::Error::Invalid)?.is_some() {
@@ -239,6 +247,62 @@ fn bench_plan(mode: &str, clip: &std::path::Path, out: &std::path::Path) -> crat
     }
     crate::config::apply_sets(&mut table, &sets).map_err(crate::Error::Invalid)?;
     crate::config::plan(table, &format!("bench ({mode})"))
+}
+
+#[derive(Debug, serde::Serialize)]
+pub struct DecodeBench {
+    pub clip: String,
+    pub frames: u64,
+    pub repeats: usize,
+    pub ffmpeg_decode_fps_median: f64,
+    pub own_decode_fps_median: f64,
+    pub own_decode_swscale_fps_median: f64,
+    /// Medians of the per-round ratios (each round times all three back to back).
+    pub ratio_own_to_ffmpeg: f64,
+    pub ratio_swscale_to_ffmpeg: f64,
+}
+
+/// `bench decode`: the pipeline's decoder (decode + RGB planes, with its own conversion and
+/// with swscale's) beside FFmpeg's decode-only speed of the same clip, in alternating rounds.
+///
+/// # Errors
+/// The ffmpeg CLI is missing, or decoding fails.
+#[cfg(feature = "ffmpeg")]
+pub fn decode(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> crate::Result<DecodeBench> {
+    let dir = std::env::temp_dir().join(format!("pipeline-bench-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).map_err(|e| crate::Error::Io { path: dir.clone(), cause: e })?;
+    let clip = dir.join(format!("bench-{w}x{h}-{fps}fps.mp4"));
+    make_clip(&clip, w, h, fps, seconds)?;
+    let repeats = repeats.max(1);
+    let (mut ff, mut own, mut sws, mut r_own, mut r_sws) = (vec![], vec![], vec![], vec![], vec![]);
+    let mut frames = 0;
+    for _ in 0..repeats {
+        let (o, n) = own_decode_fps_with(&clip, false)?;
+        let (s, _) = own_decode_fps_with(&clip, true)?;
+        let f = ffmpeg_decode_fps(&clip, n)?;
+        frames = n;
+        r_own.push(o / f);
+        r_sws.push(s / f);
+        own.push(o);
+        sws.push(s);
+        ff.push(f);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    let b = DecodeBench {
+        clip: format!("testsrc2 {w}x{h} {fps} fps H.264 (x264 veryfast), {seconds} s"),
+        frames,
+        repeats,
+        ffmpeg_decode_fps_median: median(&mut ff),
+        own_decode_fps_median: median(&mut own),
+        own_decode_swscale_fps_median: median(&mut sws),
+        ratio_own_to_ffmpeg: median(&mut r_own),
+        ratio_swscale_to_ffmpeg: median(&mut r_sws),
+    };
+    eprintln!(
+        "bench: decode {w}x{h}: ffmpeg decode-only {:.0} frames/s; pipeline decoder {:.0} ({:.2}x); with swscale's conversion {:.0} ({:.2}x) (medians of {repeats})",
+        b.ffmpeg_decode_fps_median, b.own_decode_fps_median, b.ratio_own_to_ffmpeg, b.own_decode_swscale_fps_median, b.ratio_swscale_to_ffmpeg
+    );
+    Ok(b)
 }
 
 /// `bench generate`: generation speed beside FFmpeg's decode-only speed of the same clip.
@@ -640,6 +704,23 @@ pub enum BenchCommand {
         repeats: u16,
     },
     #[cfg(feature = "ffmpeg")]
+    /// Decoding speed: the pipeline's decoder (decode + RGB planes, its own conversion and
+    /// swscale's) beside FFmpeg's decode-only speed of the same clip, in alternating rounds.
+    Decode {
+        #[arg(long, default_value_t = 1280)]
+        width: usize,
+        #[arg(long, default_value_t = 720)]
+        height: usize,
+        #[arg(long, default_value_t = 240)]
+        fps: u32,
+        /// Length of the clip.
+        #[arg(long, default_value_t = 2.0)]
+        seconds: f64,
+        /// Rounds; medians are reported.
+        #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u16).range(1..=100))]
+        repeats: u16,
+    },
+    #[cfg(feature = "ffmpeg")]
     /// Generation speed (full frame and patch mode) beside FFmpeg's decode-only speed of the
     /// same clip, which it makes with the ffmpeg CLI; peak memory on a clip twice as long.
     Generate {
@@ -697,6 +778,12 @@ pub fn command(c: BenchCommand) -> anyhow::Result<()> {
         #[cfg(feature = "train")]
         BenchCommand::Deblur { width, height, repeats } => {
             let r = deblur(width, height, repeats as usize)?;
+            println!("{}", serde_json::to_string_pretty(&r)?);
+            Ok(())
+        }
+        #[cfg(feature = "ffmpeg")]
+        BenchCommand::Decode { width, height, fps, seconds, repeats } => {
+            let r = decode(width, height, fps, seconds, repeats as usize)?;
             println!("{}", serde_json::to_string_pretty(&r)?);
             Ok(())
         }

@@ -2,9 +2,9 @@
 
 mod bad_input;
 mod common;
-mod decode;
 #[cfg(feature = "train")]
 mod deblur;
+mod decode;
 #[cfg(feature = "train")]
 mod eval;
 #[cfg(feature = "train")]
