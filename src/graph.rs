@@ -371,6 +371,7 @@ fn build(
             inputs: selected,
             needs: plan.needs_after(i),
             crop: plan.crop_for(i),
+            reads: plan.reads_for(i, plan.seed).map_err(|e| Error::Stage { stage: name.clone(), source: Box::new(e) })?,
             counters: counters.clone(),
             out_dir,
             task,

@@ -64,7 +64,7 @@ impl Blurrer {
     /// A camera whose psi schedule does not fit N.
     pub fn new(camera: Arc<Camera>, n: usize, threads: usize, rank_tolerance: f64) -> crate::Result<Blurrer> {
         let kernels = camera.window(n)?;
-        let margin = kernels.iter().map(|k| k.half_extent()).max().unwrap_or(0);
+        let margin = margin_of(&kernels);
         let pool = match threads {
             0 => None,
             t => Some(Arc::new(
@@ -207,6 +207,11 @@ impl Blurrer {
                 .collect()
         })
     }
+}
+
+/// The margin a window's kernels read around each pixel (their largest half extent).
+pub fn margin_of(kernels: &[SubframeKernel]) -> usize {
+    kernels.iter().map(|k| k.half_extent()).max().unwrap_or(0)
 }
 
 /// Runs `f` in the blurrer's own pool, or in rayon's global one.

@@ -35,6 +35,10 @@ pub struct VideoReader {
     /// Convert every frame with swscale, also the 8-bit Y'CbCr formats [`crate::io::yuv`]
     /// converts by default (the reference the tests compare that path with).
     pub force_swscale: bool,
+    /// Convert only these runs of pixels of the next frame (the rest of its planes is zero):
+    /// what the blur will read in patch mode. Only the 8-bit Y'CbCr path honours it; others
+    /// convert whole frames. Set before each [`VideoReader::next_frame`].
+    pub spans: Option<Vec<crate::io::yuv::Span>>,
 }
 
 /// The 8-bit planar Y'CbCr formats [`crate::io::yuv`] converts: chroma subsampling (log2 per
@@ -146,6 +150,7 @@ impl VideoReader {
             rate: (rate.numerator(), rate.denominator()),
             float,
             force_swscale: false,
+            spans: None,
         })
     }
 
@@ -162,7 +167,7 @@ impl VideoReader {
             let d = &self.decoded;
             let plane = |i: usize| Plane { data: d.data(i), stride: d.stride(i) };
             let [r, g, b] = &mut planes;
-            conv.convert(plane(0), plane(1), plane(2), w, h, [r, g, b]);
+            conv.convert(plane(0), plane(1), plane(2), w, h, self.spans.as_deref(), [r, g, b]);
             return Ok(Frame::new(w, h, FrameData::Planar8(planes)));
         }
         // Planar G, B, R straight from swscale: no interleaving to undo later.

@@ -51,39 +51,56 @@ impl Converter {
     }
 
     /// Converts a `w x h` frame into three planes of `w x h` bytes (R, G, B), no padding.
+    /// `spans`: only these `(row, x0, x1)` runs (rows ascending, runs of a row apart), the
+    /// rest of `out` left as it is; each converted pixel is the same as in a whole conversion.
     /// The same arithmetic (no fused multiply-adds) on every CPU; AVX2 only makes it wider.
-    pub fn convert(&self, y: Plane, cb: Plane, cr: Plane, w: usize, h: usize, out: [&mut [u8]; 3]) {
+    pub fn convert(&self, y: Plane, cb: Plane, cr: Plane, w: usize, h: usize, spans: Option<&[Span]>, out: [&mut [u8]; 3]) {
         #[cfg(target_arch = "x86_64")]
         if std::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU has AVX2, checked just above.
-            return unsafe { self.convert_avx2(y, cb, cr, w, h, out) };
+            return unsafe { self.convert_avx2(y, cb, cr, w, h, spans, out) };
         }
-        self.convert_any(y, cb, cr, w, h, out)
+        self.convert_any(y, cb, cr, w, h, spans, out)
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn convert_avx2(&self, y: Plane, cb: Plane, cr: Plane, w: usize, h: usize, out: [&mut [u8]; 3]) {
-        self.convert_any(y, cb, cr, w, h, out)
+    #[allow(clippy::too_many_arguments)]
+    unsafe fn convert_avx2(&self, y: Plane, cb: Plane, cr: Plane, w: usize, h: usize, spans: Option<&[Span]>, out: [&mut [u8]; 3]) {
+        self.convert_any(y, cb, cr, w, h, spans, out)
     }
 
     #[inline(always)]
-    fn convert_any(&self, y: Plane, cb: Plane, cr: Plane, w: usize, h: usize, out: [&mut [u8]; 3]) {
+    #[allow(clippy::too_many_arguments)]
+    fn convert_any(&self, y: Plane, cb: Plane, cr: Plane, w: usize, h: usize, spans: Option<&[Span]>, out: [&mut [u8]; 3]) {
         let cw = (w + (1 << self.sub_x) - 1) >> self.sub_x;
         let ch = (h + (1 << self.sub_y) - 1) >> self.sub_y;
-        let mut scratch = Scratch { vrow: [vec![0.0; cw], vec![0.0; cw]], full: [vec![0.0; w], vec![0.0; w]] };
+        let mut vrow = [vec![0.0f32; cw], vec![0.0f32; cw]];
+        let mut full = [vec![0.0f32; w], vec![0.0f32; w]];
         let [r, g, b] = out;
-        for (yy, ((ro, go), bo)) in r.chunks_exact_mut(w).zip(g.chunks_exact_mut(w)).zip(b.chunks_exact_mut(w)).take(h).enumerate() {
-            // Vertical: the two chroma rows around this luma row and their weights.
-            let (r0, r1, w1) = taps(yy, self.sub_y, ch);
-            for (c, p) in [cb, cr].iter().enumerate() {
-                let (a, bb) = (&p.data[r0 * p.stride..r0 * p.stride + cw], &p.data[r1 * p.stride..r1 * p.stride + cw]);
-                scratch.vrow[c].iter_mut().zip(a.iter().zip(bb)).for_each(|(o, (&a, &b))| *o = a as f32 + w1 * (b as f32 - a as f32));
-                upsample_row(&scratch.vrow[c], self.sub_x, &mut scratch.full[c]);
+        let all: Vec<Span>;
+        let spans = match spans {
+            Some(s) => s,
+            None => {
+                all = (0..h).map(|yy| Span { y: yy, x0: 0, x1: w }).collect();
+                &all
             }
-            let lum = &y.data[yy * y.stride..yy * y.stride + w];
-            let (u, v) = (&scratch.full[0][..w], &scratch.full[1][..w]);
-            for (o, k) in [ro, go, bo].into_iter().zip(&self.rows) {
+        };
+        for &Span { y: yy, x0, x1 } in spans.iter().filter(|s| s.y < h && s.x0 < s.x1.min(w)) {
+            let x1 = x1.min(w);
+            // Vertical: the two chroma rows around this luma row and their weights, over the
+            // chroma columns this run reads (its own and one either side).
+            let (r0, r1, w1) = taps(yy, self.sub_y, ch);
+            let (c0, c1) = if self.sub_x == 0 { (x0, x1) } else { ((x0 >> 1).saturating_sub(1), (((x1 - 1) >> 1) + 2).min(cw)) };
+            for (c, p) in [cb, cr].iter().enumerate() {
+                let (a, bb) = (&p.data[r0 * p.stride + c0..r0 * p.stride + c1], &p.data[r1 * p.stride + c0..r1 * p.stride + c1]);
+                vrow[c][c0..c1].iter_mut().zip(a.iter().zip(bb)).for_each(|(o, (&a, &b))| *o = a as f32 + w1 * (b as f32 - a as f32));
+                upsample_span(&vrow[c], self.sub_x, &mut full[c], x0, x1);
+            }
+            let lum = &y.data[yy * y.stride + x0..yy * y.stride + x1];
+            let (u, v) = (&full[0][x0..x1], &full[1][x0..x1]);
+            for (o, k) in [&mut *r, &mut *g, &mut *b].into_iter().zip(&self.rows) {
+                let o = &mut o[yy * w + x0..yy * w + x1];
                 for (((o, &l), &u), &v) in o.iter_mut().zip(lum).zip(u).zip(v) {
                     let x = (k[0] * l as f32 + k[1] * u + k[2] * v + k[3]).clamp(0.0, 255.0);
                     // SAFETY: x is finite and in [0, 255] (clamped), so the conversion is exact
@@ -95,9 +112,12 @@ impl Converter {
     }
 }
 
-struct Scratch {
-    vrow: [Vec<f32>; 2],
-    full: [Vec<f32>; 2],
+/// A run of pixels of one row: `x0..x1` of row `y`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Span {
+    pub y: usize,
+    pub x0: usize,
+    pub x1: usize,
 }
 
 /// Chroma rows (`r0`, `r1`) and the weight of `r1` for luma row `y` (centre siting; edges
@@ -116,34 +136,37 @@ fn taps(y: usize, sub: u32, n: usize) -> (usize, usize, f32) {
     }
 }
 
-/// Horizontal upsampling of one chroma row to the luma width, as [`taps`] does vertically:
-/// `out[2i] = 3/4 c[i] + 1/4 c[i-1]`, `out[2i+1] = 3/4 c[i] + 1/4 c[i+1]`, edges repeated.
+/// Horizontal upsampling of a chroma row to luma columns `x0..x1` of `out`, as [`taps`] does
+/// vertically: `out[2i] = 3/4 c[i] + 1/4 c[i-1]`, `out[2i+1] = 3/4 c[i] + 1/4 c[i+1]`, edges
+/// repeated. Reads `c` only around those columns.
 #[inline(always)]
-fn upsample_row(c: &[f32], sub: u32, out: &mut [f32]) {
+fn upsample_span(c: &[f32], sub: u32, out: &mut [f32], x0: usize, x1: usize) {
     if sub == 0 {
-        out.copy_from_slice(&c[..out.len()]);
+        out[x0..x1].copy_from_slice(&c[x0..x1]);
         return;
     }
-    let (n, w) = (c.len(), out.len());
+    let n = c.len();
     let at = |x: usize| {
         let i = (x >> 1).min(n - 1);
         let nb = if x & 1 == 0 { i.saturating_sub(1) } else { (i + 1).min(n - 1) };
         0.75 * c[i] + 0.25 * c[nb]
     };
-    // Interior pairs (both neighbours exist), on slices of one length so that the loop has no
-    // bounds checks and the compiler vectorises it (an interleaving store).
-    let hi = n.saturating_sub(1).min(w / 2);
-    if hi > 1 {
-        let k = hi - 1;
-        let (prev, cur, next) = (&c[..k], &c[1..1 + k], &c[2..2 + k]);
-        let o = &mut out[2..2 + 2 * k];
+    // Interior pairs (both neighbours exist, both pixels in the run), on slices of one length
+    // so that the loop has no bounds checks and vectorises (an interleaving store); the same
+    // expression as `at`, so the same bits.
+    let i0 = x0.div_ceil(2).max(1);
+    let i1 = (x1 / 2).min(n.saturating_sub(1)).max(i0);
+    let k = i1 - i0;
+    if k > 0 {
+        let (prev, cur, next) = (&c[i0 - 1..i1 - 1], &c[i0..i1], &c[i0 + 1..i1 + 1]);
+        let o = &mut out[2 * i0..2 * i1];
         for i in 0..k {
             let m = 0.75 * cur[i];
             o[2 * i] = m + 0.25 * prev[i];
             o[2 * i + 1] = m + 0.25 * next[i];
         }
     }
-    for x in (0..2.min(w)).chain(2 * hi.max(1)..w) {
+    for x in (x0..(2 * i0).min(x1)).chain((2 * i1).max(x0)..x1) {
         out[x] = at(x);
     }
 }
@@ -171,7 +194,7 @@ mod tests {
         for (ycc, rgb) in bars {
             let (y, u, v) = ([ycc[0]], [ycc[1]], [ycc[2]]);
             let (mut r, mut g, mut b) = ([0u8], [0u8], [0u8]);
-            conv.convert(plane(&y, 1), plane(&u, 1), plane(&v, 1), 1, 1, [&mut r, &mut g, &mut b]);
+            conv.convert(plane(&y, 1), plane(&u, 1), plane(&v, 1), 1, 1, None, [&mut r, &mut g, &mut b]);
             for (got, want) in [r[0], g[0], b[0]].iter().zip(rgb) {
                 assert!((*got as i32 - want as i32).abs() <= 1, "{ycc:?} -> {:?}, want {rgb:?}", [r[0], g[0], b[0]]);
             }
@@ -190,7 +213,7 @@ mod tests {
         v[4 + 1] = 228; // chroma (1, 1): luma 2..4 x 2..4
         let conv = Converter::new(Matrix::BT709, true, 1, 1);
         let (mut r, mut g, mut b) = (vec![0u8; 64], vec![0u8; 64], vec![0u8; 64]);
-        conv.convert(plane(&y, w), plane(&u, 4), plane(&v, 4), w, h, [&mut r, &mut g, &mut b]);
+        conv.convert(plane(&y, w), plane(&u, 4), plane(&v, 4), w, h, None, [&mut r, &mut g, &mut b]);
         let k = 2.0 * (1.0 - 0.2126);
         let at = |x: usize, yy: usize| r[yy * w + x] as f32;
         assert_eq!(b, vec![100u8; 64], "Cb is neutral: blue equals luma");
@@ -207,8 +230,50 @@ mod tests {
         let c = vec![128u8; 6];
         let conv = Converter::new(Matrix::BT601, false, 1, 1);
         let (mut r, mut g, mut b) = (vec![0u8; 15], vec![0u8; 15], vec![0u8; 15]);
-        conv.convert(plane(&y, 5), plane(&c, 3), plane(&c, 3), 5, 3, [&mut r, &mut g, &mut b]);
+        conv.convert(plane(&y, 5), plane(&c, 3), plane(&c, 3), 5, 3, None, [&mut r, &mut g, &mut b]);
         let want = ((50.0 - 16.0) * 255.0 / 219.0f32 + 0.5) as u8;
         assert!(r.iter().chain(&g).chain(&b).all(|&v| v == want), "{r:?}");
+    }
+
+    #[test]
+    fn runs_convert_to_the_same_bytes_as_the_whole_frame() {
+        // Random planes, every subsampling, runs starting and ending on odd and even columns,
+        // at the edges and inside: each converted pixel equals the whole conversion's, and
+        // nothing outside the runs is written.
+        let (w, h) = (37usize, 23usize);
+        let mut seed = 7u64;
+        let mut next = || {
+            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (seed >> 33) as u8
+        };
+        for (sx, sy) in [(1u32, 1u32), (1, 0), (0, 0)] {
+            let (cw, ch) = ((w + (1 << sx) - 1) >> sx, (h + (1 << sy) - 1) >> sy);
+            let y: Vec<u8> = (0..w * h).map(|_| next()).collect();
+            let u: Vec<u8> = (0..cw * ch).map(|_| next()).collect();
+            let v: Vec<u8> = (0..cw * ch).map(|_| next()).collect();
+            let conv = Converter::new(Matrix::BT709, false, sx, sy);
+            let mut whole = [vec![0u8; w * h], vec![0u8; w * h], vec![0u8; w * h]];
+            let [a, b, c] = &mut whole;
+            conv.convert(plane(&y, w), plane(&u, cw), plane(&v, cw), w, h, None, [a, b, c]);
+            let spans: Vec<Span> = (0..h)
+                .flat_map(|yy| [Span { y: yy, x0: yy % 5, x1: 9 + yy % 4 }, Span { y: yy, x0: 12 + yy % 3, x1: w - yy % 2 }])
+                .collect();
+            let mut part = [vec![7u8; w * h], vec![7u8; w * h], vec![7u8; w * h]];
+            let [a, b, c] = &mut part;
+            conv.convert(plane(&y, w), plane(&u, cw), plane(&v, cw), w, h, Some(&spans), [a, b, c]);
+            for ch_ in 0..3 {
+                for yy in 0..h {
+                    for x in 0..w {
+                        let inside = spans.iter().any(|s| s.y == yy && x >= s.x0 && x < s.x1);
+                        let got = part[ch_][yy * w + x];
+                        if inside {
+                            assert_eq!(got, whole[ch_][yy * w + x], "sub {sx},{sy} channel {ch_} at ({x}, {yy})");
+                        } else {
+                            assert_eq!(got, 7, "sub {sx},{sy}: ({x}, {yy}) outside the runs was written");
+                        }
+                    }
+                }
+            }
+        }
     }
 }

@@ -47,6 +47,22 @@ pub struct BlurConfig {
     pub tile: usize,
 }
 
+impl BlurConfig {
+    /// The camera of these settings, one per process for each distinct optics and camera
+    /// config, so that the plan (asking for the kernel margin) and the stage share its kernels.
+    fn camera_shared(&self) -> Arc<Camera> {
+        static CAMERAS: std::sync::Mutex<Vec<(String, Arc<Camera>)>> = std::sync::Mutex::new(Vec::new());
+        let key = serde_json::to_string(&(&self.optics, &self.camera)).unwrap_or_default();
+        let mut cams = CAMERAS.lock().unwrap_or_else(|p| p.into_inner());
+        if let Some((_, c)) = cams.iter().find(|(k, _)| *k == key) {
+            return c.clone();
+        }
+        let c = Arc::new(Camera::new(&self.optics, &self.camera));
+        cams.push((key, c.clone()));
+        c
+    }
+}
+
 /// The tile size of `tile = 0` for a `w x h` frame (`usize::MAX`: one plane).
 pub fn auto_tile(w: usize, h: usize) -> usize {
     if w * h <= 1920 * 1088 {
@@ -95,8 +111,13 @@ impl StageConfig for BlurConfig {
     fn subframes_per_window(&self) -> usize {
         self.window
     }
+    fn crop_geometry(&self) -> crate::Result<Option<super::patches::CropGeometry>> {
+        let kernels = self.camera_shared().window(self.window)?;
+        let margin = crate::imaging::blur::margin_of(&kernels);
+        Ok(Some(super::patches::CropGeometry { window: self.window, stride: self.stride.unwrap_or(self.window), margin }))
+    }
     fn build(&self, ctx: &BuildContext) -> crate::Result<Built> {
-        let cam = Arc::new(Camera::new(&self.optics, &self.camera));
+        let cam = self.camera_shared();
         let blurrer = Blurrer::new(cam, self.window, self.threads, self.rank_tolerance)?;
         let stride = self.stride.unwrap_or(self.window);
         let mut t = CodedBlur::new(blurrer, stride, ctx.seed, ctx.crop.clone(), ctx.counters.clone());

@@ -35,6 +35,7 @@ impl StageConfig for DecodeConfig {
             max_frames: self.max_frames,
             needs: ctx.needs,
             counters: ctx.counters.clone(),
+            reads: ctx.reads.clone(),
         })))
     }
 }
@@ -44,6 +45,8 @@ pub struct Decode {
     pub max_frames: u64,
     pub needs: Needs,
     pub counters: Arc<Counters>,
+    /// In patch mode: convert only what the blur reads of each frame.
+    pub reads: Option<super::patches::ReadRegions>,
 }
 
 impl Source for Decode {
@@ -77,6 +80,8 @@ impl Source for Decode {
                 if self.max_frames > 0 && n >= self.max_frames {
                     break Ok(());
                 }
+                let (w, h) = (reader.info.width, reader.info.height);
+                reader.spans = self.reads.as_ref().and_then(|r| r.spans(input.id, n, w, h));
                 match reader.next_frame() {
                     Ok(Some(f)) => {
                         Counters::add(&self.counters.frames, 1);

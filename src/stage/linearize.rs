@@ -24,6 +24,9 @@ impl StageConfig for LinearizeConfig {
     fn validate(&self, _key: &str) -> Vec<ConfigError> {
         Vec::new()
     }
+    fn keeps_positions(&self) -> bool {
+        true
+    }
     fn build(&self, _ctx: &BuildContext) -> crate::Result<Built> {
         Ok(Built::Transform(Box::new(Linearize::new(self.curve))))
     }

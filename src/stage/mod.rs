@@ -183,6 +183,9 @@ pub struct BuildContext<'a> {
     /// Patches to cut before blurring, when a patch stage follows the blur across per-pixel
     /// stages only ([`StageConfig::crop_selector`]).
     pub crop: Option<patches::Selector>,
+    /// For a source: the parts of each frame the blur will read, when patches are cut first
+    /// and nothing between moves pixels ([`crate::config::Plan::reads_for`]).
+    pub reads: Option<patches::ReadRegions>,
     pub counters: Arc<Counters>,
     /// The output folder (sinks).
     pub out_dir: &'a Path,
@@ -234,6 +237,19 @@ pub trait StageConfig: std::fmt::Debug {
     /// The patches it cuts, if they may be cut before the blur instead.
     fn crop_selector(&self) -> Option<patches::Selector> {
         None
+    }
+    /// Leaves every pixel where it is (a source's frames may then be read only where the blur
+    /// will read them).
+    fn keeps_positions(&self) -> bool {
+        false
+    }
+    /// A stage that takes a crop: its windows' length and stride and the kernel margin it reads
+    /// around each patch.
+    ///
+    /// # Errors
+    /// The kernels cannot be made (a config error `validate` reports too).
+    fn crop_geometry(&self) -> crate::Result<Option<patches::CropGeometry>> {
+        Ok(None)
     }
     /// Sub-frames each window images (the report's sub-frame count).
     fn subframes_per_window(&self) -> usize {
