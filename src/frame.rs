@@ -63,6 +63,22 @@ impl Frame {
                 let t = lut8(curve);
                 fill!(p[c], |v: u8| t[v as usize])
             }
+            FrameData::Regions8(regions) => {
+                let t = lut8(curve);
+                let (lo, hi) = match cols {
+                    Cols::From(x0) => (x0, x0 + out.len()),
+                    Cols::Index(ix) => (ix.iter().copied().min().unwrap_or(0), ix.iter().copied().max().map_or(0, |m| m + 1)),
+                };
+                let r = regions
+                    .iter()
+                    .find(|r| r.holds(y, lo, hi))
+                    .unwrap_or_else(|| panic!("row {y} columns {lo}..{hi} were not decoded (patch-mode regions)"));
+                let row = &r.planes[c][(y - r.y0) * r.w..(y - r.y0 + 1) * r.w];
+                match cols {
+                    Cols::From(x0) => out.iter_mut().zip(&row[x0 - r.x0..]).for_each(|(o, v)| *o = t[*v as usize]),
+                    Cols::Index(ix) => out.iter_mut().zip(ix).for_each(|(o, &i)| *o = t[row[i - r.x0] as usize]),
+                }
+            }
             FrameData::Planar16(p) => {
                 let t = lut16(curve);
                 fill!(p[c], |v: u16| t[v as usize])
@@ -88,10 +104,29 @@ impl Frame {
 pub enum FrameData {
     /// Encoded 8-bit planes R, G, B (8-bit sources).
     Planar8([Vec<u8>; 3]),
+    /// Only some rectangles of an 8-bit frame, each with its own planes: what a patch-mode
+    /// blur reads (its patches plus the kernel margin). Reading outside them is a bug.
+    Regions8(Vec<Region8>),
     /// Encoded 16-bit planes R, G, B (sources of more than 8 bits, scaled to the full range).
     Planar16([Vec<u16>; 3]),
     /// Planar RGB f32, values in [0, 1] (the `stills` source, and tests).
     Planar([Vec<f32>; 3]),
+}
+
+/// A rectangle of an 8-bit frame: `w x h` pixels at (x0, y0), planes R, G, B of `w x h`.
+#[derive(Debug, Clone)]
+pub struct Region8 {
+    pub x0: usize,
+    pub y0: usize,
+    pub w: usize,
+    pub h: usize,
+    pub planes: [Vec<u8>; 3],
+}
+
+impl Region8 {
+    fn holds(&self, y: usize, lo: usize, hi: usize) -> bool {
+        y >= self.y0 && y < self.y0 + self.h && lo >= self.x0 && hi <= self.x0 + self.w
+    }
 }
 
 /// One input (video or still) as the stages know it.

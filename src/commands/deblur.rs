@@ -212,6 +212,19 @@ pub fn to_rgb8(f: &crate::frame::Frame, float_linear: bool) -> Vec<u8> {
     let n = f.width * f.height;
     match &*f.data {
         FrameData::Planar8(p) => (0..n).flat_map(|i| [p[0][i], p[1][i], p[2][i]]).collect(),
+        FrameData::Regions8(regions) => {
+            // Only patch-mode decoding makes these; the rectangles over black.
+            let mut out = vec![0u8; n * 3];
+            for r in regions {
+                for y in 0..r.h {
+                    for x in 0..r.w {
+                        let i = (r.y0 + y) * f.width + r.x0 + x;
+                        (0..3).for_each(|c| out[i * 3 + c] = r.planes[c][y * r.w + x]);
+                    }
+                }
+            }
+            out
+        }
         FrameData::Planar16(p) => (0..n).flat_map(|i| [0, 1, 2].map(|c| (p[c][i] as f32 / 257.0).round() as u8)).collect(),
         FrameData::Planar(p) => (0..n)
             .flat_map(|i| {

@@ -35,10 +35,10 @@ pub struct VideoReader {
     /// Convert every frame with swscale, also the 8-bit Y'CbCr formats [`crate::io::yuv`]
     /// converts by default (the reference the tests compare that path with).
     pub force_swscale: bool,
-    /// Convert only these runs of pixels of the next frame (the rest of its planes is zero):
-    /// what the blur will read in patch mode. Only the 8-bit Y'CbCr path honours it; others
-    /// convert whole frames. Set before each [`VideoReader::next_frame`].
-    pub spans: Option<Vec<crate::io::yuv::Span>>,
+    /// Convert only these rectangles (x0, y0, w, h) of the next frame, which then comes as
+    /// `FrameData::Regions8`: what the blur will read in patch mode. Only the 8-bit Y'CbCr path
+    /// honours it; others convert whole frames. Set before each [`VideoReader::next_frame`].
+    pub regions: Option<Vec<(usize, usize, usize, usize)>>,
 }
 
 /// The 8-bit planar Y'CbCr formats [`crate::io::yuv`] converts: chroma subsampling (log2 per
@@ -150,7 +150,7 @@ impl VideoReader {
             rate: (rate.numerator(), rate.denominator()),
             float,
             force_swscale: false,
-            spans: None,
+            regions: None,
         })
     }
 
@@ -163,11 +163,24 @@ impl VideoReader {
             let full = full || self.decoded.color_range() == ff::color::Range::JPEG;
             let conv = Converter::new(matrix_of(&self.decoded), full, sx, sy);
             let (w, h) = (w as usize, h as usize);
-            let mut planes: [Vec<u8>; 3] = std::array::from_fn(|_| vec![0u8; w * h]);
             let d = &self.decoded;
             let plane = |i: usize| Plane { data: d.data(i), stride: d.stride(i) };
+            if let Some(rects) = &self.regions {
+                let regions = rects
+                    .iter()
+                    .filter(|r| r.2 > 0 && r.3 > 0 && r.0 + r.2 <= w && r.1 + r.3 <= h)
+                    .map(|&(x0, y0, rw, rh)| {
+                        let mut planes: [Vec<u8>; 3] = std::array::from_fn(|_| vec![0u8; rw * rh]);
+                        let [r, g, b] = &mut planes;
+                        conv.convert_rect(plane(0), plane(1), plane(2), w, h, (x0, y0, rw, rh), [r, g, b]);
+                        crate::frame::Region8 { x0, y0, w: rw, h: rh, planes }
+                    })
+                    .collect();
+                return Ok(Frame::new(w, h, FrameData::Regions8(regions)));
+            }
+            let mut planes: [Vec<u8>; 3] = std::array::from_fn(|_| vec![0u8; w * h]);
             let [r, g, b] = &mut planes;
-            conv.convert(plane(0), plane(1), plane(2), w, h, self.spans.as_deref(), [r, g, b]);
+            conv.convert(plane(0), plane(1), plane(2), w, h, [r, g, b]);
             return Ok(Frame::new(w, h, FrameData::Planar8(planes)));
         }
         // Planar G, B, R straight from swscale: no interleaving to undo later.

@@ -51,41 +51,78 @@ impl Converter {
     }
 
     /// Converts a `w x h` frame into three planes of `w x h` bytes (R, G, B), no padding.
-    /// `spans`: only these `(row, x0, x1)` runs (rows ascending, runs of a row apart), the
-    /// rest of `out` left as it is; each converted pixel is the same as in a whole conversion.
     /// The same arithmetic (no fused multiply-adds) on every CPU; AVX2 only makes it wider.
-    pub fn convert(&self, y: Plane, cb: Plane, cr: Plane, w: usize, h: usize, spans: Option<&[Span]>, out: [&mut [u8]; 3]) {
+    pub fn convert(&self, y: Plane, cb: Plane, cr: Plane, w: usize, h: usize, out: [&mut [u8]; 3]) {
+        let spans: Vec<Span> = (0..h).map(|yy| Span { y: yy, x0: 0, x1: w }).collect();
+        self.dispatch(y, cb, cr, w, h, &spans, (0, 0, w), out)
+    }
+
+    /// Converts the `rw x rh` rectangle at (x0, y0) of a `w x h` frame (inside it) into three
+    /// planes of `rw x rh` bytes: each pixel the same as in [`Converter::convert`].
+    #[allow(clippy::too_many_arguments)]
+    pub fn convert_rect(
+        &self,
+        y: Plane,
+        cb: Plane,
+        cr: Plane,
+        w: usize,
+        h: usize,
+        rect: (usize, usize, usize, usize),
+        out: [&mut [u8]; 3],
+    ) {
+        let (x0, y0, rw, rh) = rect;
+        let spans: Vec<Span> = (y0..y0 + rh).map(|yy| Span { y: yy, x0, x1: x0 + rw }).collect();
+        self.dispatch(y, cb, cr, w, h, &spans, (x0, y0, rw), out)
+    }
+
+    #[allow(clippy::too_many_arguments)]
+    fn dispatch(&self, y: Plane, cb: Plane, cr: Plane, w: usize, h: usize, spans: &[Span], at: (usize, usize, usize), out: [&mut [u8]; 3]) {
         #[cfg(target_arch = "x86_64")]
         if std::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU has AVX2, checked just above.
-            return unsafe { self.convert_avx2(y, cb, cr, w, h, spans, out) };
+            return unsafe { self.convert_avx2(y, cb, cr, w, h, spans, at, out) };
         }
-        self.convert_any(y, cb, cr, w, h, spans, out)
+        self.convert_any(y, cb, cr, w, h, spans, at, out)
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
     #[allow(clippy::too_many_arguments)]
-    unsafe fn convert_avx2(&self, y: Plane, cb: Plane, cr: Plane, w: usize, h: usize, spans: Option<&[Span]>, out: [&mut [u8]; 3]) {
-        self.convert_any(y, cb, cr, w, h, spans, out)
+    unsafe fn convert_avx2(
+        &self,
+        y: Plane,
+        cb: Plane,
+        cr: Plane,
+        w: usize,
+        h: usize,
+        spans: &[Span],
+        at: (usize, usize, usize),
+        out: [&mut [u8]; 3],
+    ) {
+        self.convert_any(y, cb, cr, w, h, spans, at, out)
     }
 
+    /// Converts each run; pixel (x, y) goes to `out[(y - oy) * stride + x - ox]` with `at` =
+    /// (ox, oy, stride).
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
-    fn convert_any(&self, y: Plane, cb: Plane, cr: Plane, w: usize, h: usize, spans: Option<&[Span]>, out: [&mut [u8]; 3]) {
+    fn convert_any(
+        &self,
+        y: Plane,
+        cb: Plane,
+        cr: Plane,
+        w: usize,
+        h: usize,
+        spans: &[Span],
+        at: (usize, usize, usize),
+        out: [&mut [u8]; 3],
+    ) {
         let cw = (w + (1 << self.sub_x) - 1) >> self.sub_x;
         let ch = (h + (1 << self.sub_y) - 1) >> self.sub_y;
+        let (ox, oy, ostride) = at;
         let mut vrow = [vec![0.0f32; cw], vec![0.0f32; cw]];
         let mut full = [vec![0.0f32; w], vec![0.0f32; w]];
         let [r, g, b] = out;
-        let all: Vec<Span>;
-        let spans = match spans {
-            Some(s) => s,
-            None => {
-                all = (0..h).map(|yy| Span { y: yy, x0: 0, x1: w }).collect();
-                &all
-            }
-        };
         for &Span { y: yy, x0, x1 } in spans.iter().filter(|s| s.y < h && s.x0 < s.x1.min(w)) {
             let x1 = x1.min(w);
             // Vertical: the two chroma rows around this luma row and their weights, over the
@@ -99,8 +136,9 @@ impl Converter {
             }
             let lum = &y.data[yy * y.stride + x0..yy * y.stride + x1];
             let (u, v) = (&full[0][x0..x1], &full[1][x0..x1]);
+            let base = (yy - oy) * ostride + x0 - ox;
             for (o, k) in [&mut *r, &mut *g, &mut *b].into_iter().zip(&self.rows) {
-                let o = &mut o[yy * w + x0..yy * w + x1];
+                let o = &mut o[base..base + (x1 - x0)];
                 for (((o, &l), &u), &v) in o.iter_mut().zip(lum).zip(u).zip(v) {
                     let x = (k[0] * l as f32 + k[1] * u + k[2] * v + k[3]).clamp(0.0, 255.0);
                     // SAFETY: x is finite and in [0, 255] (clamped), so the conversion is exact
@@ -114,10 +152,10 @@ impl Converter {
 
 /// A run of pixels of one row: `x0..x1` of row `y`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Span {
-    pub y: usize,
-    pub x0: usize,
-    pub x1: usize,
+struct Span {
+    y: usize,
+    x0: usize,
+    x1: usize,
 }
 
 /// Chroma rows (`r0`, `r1`) and the weight of `r1` for luma row `y` (centre siting; edges
@@ -194,7 +232,7 @@ mod tests {
         for (ycc, rgb) in bars {
             let (y, u, v) = ([ycc[0]], [ycc[1]], [ycc[2]]);
             let (mut r, mut g, mut b) = ([0u8], [0u8], [0u8]);
-            conv.convert(plane(&y, 1), plane(&u, 1), plane(&v, 1), 1, 1, None, [&mut r, &mut g, &mut b]);
+            conv.convert(plane(&y, 1), plane(&u, 1), plane(&v, 1), 1, 1, [&mut r, &mut g, &mut b]);
             for (got, want) in [r[0], g[0], b[0]].iter().zip(rgb) {
                 assert!((*got as i32 - want as i32).abs() <= 1, "{ycc:?} -> {:?}, want {rgb:?}", [r[0], g[0], b[0]]);
             }
@@ -213,7 +251,7 @@ mod tests {
         v[4 + 1] = 228; // chroma (1, 1): luma 2..4 x 2..4
         let conv = Converter::new(Matrix::BT709, true, 1, 1);
         let (mut r, mut g, mut b) = (vec![0u8; 64], vec![0u8; 64], vec![0u8; 64]);
-        conv.convert(plane(&y, w), plane(&u, 4), plane(&v, 4), w, h, None, [&mut r, &mut g, &mut b]);
+        conv.convert(plane(&y, w), plane(&u, 4), plane(&v, 4), w, h, [&mut r, &mut g, &mut b]);
         let k = 2.0 * (1.0 - 0.2126);
         let at = |x: usize, yy: usize| r[yy * w + x] as f32;
         assert_eq!(b, vec![100u8; 64], "Cb is neutral: blue equals luma");
@@ -230,16 +268,15 @@ mod tests {
         let c = vec![128u8; 6];
         let conv = Converter::new(Matrix::BT601, false, 1, 1);
         let (mut r, mut g, mut b) = (vec![0u8; 15], vec![0u8; 15], vec![0u8; 15]);
-        conv.convert(plane(&y, 5), plane(&c, 3), plane(&c, 3), 5, 3, None, [&mut r, &mut g, &mut b]);
+        conv.convert(plane(&y, 5), plane(&c, 3), plane(&c, 3), 5, 3, [&mut r, &mut g, &mut b]);
         let want = ((50.0 - 16.0) * 255.0 / 219.0f32 + 0.5) as u8;
         assert!(r.iter().chain(&g).chain(&b).all(|&v| v == want), "{r:?}");
     }
 
     #[test]
-    fn runs_convert_to_the_same_bytes_as_the_whole_frame() {
-        // Random planes, every subsampling, runs starting and ending on odd and even columns,
-        // at the edges and inside: each converted pixel equals the whole conversion's, and
-        // nothing outside the runs is written.
+    fn rectangles_convert_to_the_same_bytes_as_the_whole_frame() {
+        // Random planes, every subsampling, rectangles starting and ending on odd and even
+        // columns and rows, at the edges and inside: each pixel equals the whole conversion's.
         let (w, h) = (37usize, 23usize);
         let mut seed = 7u64;
         let mut next = || {
@@ -254,22 +291,17 @@ mod tests {
             let conv = Converter::new(Matrix::BT709, false, sx, sy);
             let mut whole = [vec![0u8; w * h], vec![0u8; w * h], vec![0u8; w * h]];
             let [a, b, c] = &mut whole;
-            conv.convert(plane(&y, w), plane(&u, cw), plane(&v, cw), w, h, None, [a, b, c]);
-            let spans: Vec<Span> = (0..h)
-                .flat_map(|yy| [Span { y: yy, x0: yy % 5, x1: 9 + yy % 4 }, Span { y: yy, x0: 12 + yy % 3, x1: w - yy % 2 }])
-                .collect();
-            let mut part = [vec![7u8; w * h], vec![7u8; w * h], vec![7u8; w * h]];
-            let [a, b, c] = &mut part;
-            conv.convert(plane(&y, w), plane(&u, cw), plane(&v, cw), w, h, Some(&spans), [a, b, c]);
-            for ch_ in 0..3 {
-                for yy in 0..h {
-                    for x in 0..w {
-                        let inside = spans.iter().any(|s| s.y == yy && x >= s.x0 && x < s.x1);
-                        let got = part[ch_][yy * w + x];
-                        if inside {
-                            assert_eq!(got, whole[ch_][yy * w + x], "sub {sx},{sy} channel {ch_} at ({x}, {yy})");
-                        } else {
-                            assert_eq!(got, 7, "sub {sx},{sy}: ({x}, {yy}) outside the runs was written");
+            conv.convert(plane(&y, w), plane(&u, cw), plane(&v, cw), w, h, [a, b, c]);
+            for rect in [(0usize, 0usize, 5usize, 4usize), (3, 1, 9, 7), (12, 9, 25, 14), (36, 22, 1, 1), (1, 0, 36, 23), (0, 5, 37, 1)] {
+                let (x0, y0, rw, rh) = rect;
+                let mut part = [vec![0u8; rw * rh], vec![0u8; rw * rh], vec![0u8; rw * rh]];
+                let [a, b, c] = &mut part;
+                conv.convert_rect(plane(&y, w), plane(&u, cw), plane(&v, cw), w, h, rect, [a, b, c]);
+                for ch_ in 0..3 {
+                    for yy in 0..rh {
+                        for x in 0..rw {
+                            let want = whole[ch_][(y0 + yy) * w + x0 + x];
+                            assert_eq!(part[ch_][yy * rw + x], want, "sub {sx},{sy} rect {rect:?} channel {ch_} at ({x}, {yy})");
                         }
                     }
                 }

@@ -81,7 +81,7 @@ impl Source for Decode {
                     break Ok(());
                 }
                 let (w, h) = (reader.info.width, reader.info.height);
-                reader.spans = self.reads.as_ref().and_then(|r| r.spans(input.id, n, w, h));
+                reader.regions = self.reads.as_ref().and_then(|r| r.rects(input.id, n, w, h));
                 match reader.next_frame() {
                     Ok(Some(f)) => {
                         Counters::add(&self.counters.frames, 1);

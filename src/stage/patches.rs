@@ -125,41 +125,26 @@ pub struct ReadRegions {
 }
 
 impl ReadRegions {
-    /// Runs of pixels (row by row, ascending, merged) of frame `frame` of `input` that the blur
-    /// reads; `None` (read everything) when the frame is smaller than a patch, which the blur
-    /// reports as the input's error.
-    pub fn spans(&self, input: u64, frame: u64, w: usize, h: usize) -> Option<Vec<crate::io::yuv::Span>> {
+    /// Rectangles (x0, y0, w, h) of frame `frame` of `input` that the blur reads, one per
+    /// patch of each window the frame belongs to (the patch plus the margin, clamped to the
+    /// frame: mirrored reads near a border land inside it); `None` (read everything) when the
+    /// frame is smaller than a patch, which the blur reports as the input's error.
+    pub fn rects(&self, input: u64, frame: u64, w: usize, h: usize) -> Option<Vec<(usize, usize, usize, usize)>> {
         let CropGeometry { window, stride, margin: m } = self.geometry;
         let (n, st, s) = (window as u64, stride.max(1) as u64, self.selector.size);
         // Windows k start at k * stride and hold frames k * stride .. k * stride + n.
         let first = (frame + 1).saturating_sub(n).div_ceil(st);
         let mut rects = Vec::new();
         for k in (first..=frame / st).filter(|k| k * st + n > frame) {
-            let pos = self.selector.positions(self.seed, input, k, w, h).ok()?;
-            rects.extend(pos.into_iter().map(|(x, y)| (x.saturating_sub(m), (x + s + m).min(w), y.saturating_sub(m), (y + s + m).min(h))));
-        }
-        let mut spans = Vec::new();
-        let mut runs: Vec<(usize, usize)> = Vec::new();
-        for y in 0..h {
-            runs.clear();
-            runs.extend(rects.iter().filter(|r| y >= r.2 && y < r.3).map(|r| (r.0, r.1)));
-            runs.sort_unstable();
-            let mut cur: Option<(usize, usize)> = None;
-            for &(a, b) in &runs {
-                cur = match cur {
-                    Some((c0, c1)) if a <= c1 => Some((c0, c1.max(b))),
-                    Some((c0, c1)) => {
-                        spans.push(crate::io::yuv::Span { y, x0: c0, x1: c1 });
-                        Some((a, b))
-                    }
-                    None => Some((a, b)),
-                };
-            }
-            if let Some((c0, c1)) = cur {
-                spans.push(crate::io::yuv::Span { y, x0: c0, x1: c1 });
+            for (x, y) in self.selector.positions(self.seed, input, k, w, h).ok()? {
+                let (x0, y0) = (x.saturating_sub(m), y.saturating_sub(m));
+                let r = (x0, y0, (x + s + m).min(w) - x0, (y + s + m).min(h) - y0);
+                if !rects.contains(&r) {
+                    rects.push(r);
+                }
             }
         }
-        Some(spans)
+        Some(rects)
     }
 }
 
@@ -215,41 +200,33 @@ mod tests {
     use super::*;
 
     #[test]
-    fn read_regions_cover_every_patch_and_margin_of_every_window_of_a_frame() {
-        // Overlapping windows (stride < N), gaps (stride > N) and plain ones; each frame's runs
-        // must hold every pixel the blur reads for each window the frame is in (the patch plus
-        // the margin, clamped: mirrored reads near a border land inside it), and nothing of
-        // windows the frame is not in.
+    fn read_regions_hold_every_patch_and_margin_of_every_window_of_a_frame() {
+        // Overlapping windows (stride < N), gaps (stride > N) and plain ones: each patch of each
+        // window a frame is in has a rectangle holding it with its margin (clamped: mirrored
+        // reads near a border land inside it), and no rectangle belongs to another window.
         let sel = Selector { size: 16, per_window: 3, placement: Placement::Random };
         let (w, h) = (97usize, 71usize);
         for (window, stride, margin) in [(9usize, 9usize, 5usize), (7, 3, 11), (5, 8, 2)] {
             let rr = ReadRegions { selector: sel.clone(), seed: 4, geometry: CropGeometry { window, stride, margin } };
             for frame in 0..40u64 {
-                let spans = rr.spans(42, frame, w, h).unwrap();
-                let covered = |x: usize, y: usize| spans.iter().any(|s| s.y == y && x >= s.x0 && x < s.x1);
-                let mut want = vec![false; w * h];
+                let rects = rr.rects(42, frame, w, h).unwrap();
+                let mut want = Vec::new();
                 for k in 0..40u64 {
                     let start = k * stride as u64;
                     if frame < start || frame >= start + window as u64 {
                         continue;
                     }
                     for (px, py) in sel.positions(4, 42, k, w, h).unwrap() {
-                        for y in py.saturating_sub(margin)..(py + 16 + margin).min(h) {
-                            for x in px.saturating_sub(margin)..(px + 16 + margin).min(w) {
-                                want[y * w + x] = true;
-                            }
-                        }
+                        let (x0, y0) = (px.saturating_sub(margin), py.saturating_sub(margin));
+                        want.push((x0, y0, (px + 16 + margin).min(w) - x0, (py + 16 + margin).min(h) - y0));
                     }
                 }
-                for y in 0..h {
-                    for x in 0..w {
-                        assert_eq!(covered(x, y), want[y * w + x], "N {window} stride {stride} frame {frame} at ({x}, {y})");
-                    }
+                want.dedup();
+                for r in &want {
+                    assert!(rects.contains(r), "N {window} stride {stride} frame {frame}: {r:?} missing from {rects:?}");
                 }
-                // Runs of a row are ascending and apart (merged).
-                for p in spans.windows(2) {
-                    assert!(p[0].y < p[1].y || (p[0].y == p[1].y && p[0].x1 < p[1].x0), "{p:?}");
-                }
+                assert!(rects.iter().all(|r| want.contains(r)), "N {window} stride {stride} frame {frame}: extra rectangles");
+                assert!(rects.iter().all(|r| r.0 + r.2 <= w && r.1 + r.3 <= h));
             }
         }
     }
