@@ -97,6 +97,8 @@ pub struct GenerateBench {
     pub threads: usize,
     pub ffmpeg_decode_fps_median: f64,
     pub own_decode_fps_median: f64,
+    /// The decoder alone in alternating rounds beside FFmpeg (own conversion and swscale's).
+    pub decode: DecodeBench,
     pub rows: Vec<GenerateRow>,
     /// The FFT floor of a full-frame coded window on this machine.
     pub fft_floor: FftFloor,
@@ -188,11 +190,6 @@ fn make_clip(path: &std::path::Path, w: usize, h: usize, fps: u32, seconds: f64)
     ])
 }
 
-#[cfg(feature = "ffmpeg")]
-fn own_decode_fps(path: &std::path::Path) -> crate::Result<(f64, u64)> {
-    own_decode_fps_with(path, false)
-}
-
 /// Frames/s of the pipeline's decoder (decode + RGB planes); `swscale`: with swscale's
 /// conversion instead of its own (the path before it had one).
 #[cfg(feature = "ffmpeg")]
@@ -273,13 +270,25 @@ pub fn decode(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> cra
     std::fs::create_dir_all(&dir).map_err(|e| crate::Error::Io { path: dir.clone(), cause: e })?;
     let clip = dir.join(format!("bench-{w}x{h}-{fps}fps.mp4"));
     make_clip(&clip, w, h, fps, seconds)?;
+    let b = decode_rounds(&clip, &format!("testsrc2 {w}x{h} {fps} fps H.264 (x264 veryfast), {seconds} s"), repeats)?;
+    let _ = std::fs::remove_dir_all(&dir);
+    eprintln!(
+        "bench: decode {w}x{h}: ffmpeg decode-only {:.0} frames/s; pipeline decoder {:.0} ({:.2}x); with swscale's conversion {:.0} ({:.2}x) (medians of {})",
+        b.ffmpeg_decode_fps_median, b.own_decode_fps_median, b.ratio_own_to_ffmpeg, b.own_decode_swscale_fps_median, b.ratio_swscale_to_ffmpeg, b.repeats
+    );
+    Ok(b)
+}
+
+/// Rounds of: the decoder with its own conversion, with swscale's, then FFmpeg decode-only.
+#[cfg(feature = "ffmpeg")]
+fn decode_rounds(clip: &std::path::Path, name: &str, repeats: usize) -> crate::Result<DecodeBench> {
     let repeats = repeats.max(1);
     let (mut ff, mut own, mut sws, mut r_own, mut r_sws) = (vec![], vec![], vec![], vec![], vec![]);
     let mut frames = 0;
     for _ in 0..repeats {
-        let (o, n) = own_decode_fps_with(&clip, false)?;
-        let (s, _) = own_decode_fps_with(&clip, true)?;
-        let f = ffmpeg_decode_fps(&clip, n)?;
+        let (o, n) = own_decode_fps_with(clip, false)?;
+        let (s, _) = own_decode_fps_with(clip, true)?;
+        let f = ffmpeg_decode_fps(clip, n)?;
         frames = n;
         r_own.push(o / f);
         r_sws.push(s / f);
@@ -287,9 +296,8 @@ pub fn decode(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> cra
         sws.push(s);
         ff.push(f);
     }
-    let _ = std::fs::remove_dir_all(&dir);
-    let b = DecodeBench {
-        clip: format!("testsrc2 {w}x{h} {fps} fps H.264 (x264 veryfast), {seconds} s"),
+    Ok(DecodeBench {
+        clip: name.into(),
         frames,
         repeats,
         ffmpeg_decode_fps_median: median(&mut ff),
@@ -297,12 +305,7 @@ pub fn decode(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> cra
         own_decode_swscale_fps_median: median(&mut sws),
         ratio_own_to_ffmpeg: median(&mut r_own),
         ratio_swscale_to_ffmpeg: median(&mut r_sws),
-    };
-    eprintln!(
-        "bench: decode {w}x{h}: ffmpeg decode-only {:.0} frames/s; pipeline decoder {:.0} ({:.2}x); with swscale's conversion {:.0} ({:.2}x) (medians of {repeats})",
-        b.ffmpeg_decode_fps_median, b.own_decode_fps_median, b.ratio_own_to_ffmpeg, b.own_decode_swscale_fps_median, b.ratio_swscale_to_ffmpeg
-    );
-    Ok(b)
+    })
 }
 
 /// `bench generate`: generation speed beside FFmpeg's decode-only speed of the same clip.
@@ -319,16 +322,12 @@ pub fn generate(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> c
     make_clip(&clip, w, h, fps, seconds)?;
     make_clip(&long, w, h, fps, 2.0 * seconds)?;
     let repeats = repeats.max(1);
-    let (mut ff, mut own) = (Vec::new(), Vec::new());
-    let mut frames = 0;
-    for _ in 0..repeats {
-        let (o, n) = own_decode_fps(&clip)?;
-        frames = n;
-        own.push(o);
-        ff.push(ffmpeg_decode_fps(&clip, n)?);
-    }
-    let (ff_med, own_med) = (median(&mut ff), median(&mut own));
-    eprintln!("bench: decode only: ffmpeg CLI {ff_med:.0} frames/s, pipeline decoder (with RGB conversion) {own_med:.0} frames/s");
+    let dec = decode_rounds(&clip, "the clip below", repeats)?;
+    let (ff_med, own_med, frames) = (dec.ffmpeg_decode_fps_median, dec.own_decode_fps_median, dec.frames);
+    eprintln!(
+        "bench: decode only: ffmpeg CLI {ff_med:.0} frames/s, pipeline decoder (with RGB conversion) {own_med:.0} frames/s ({:.2}x, median of the rounds' ratios); with swscale's conversion {:.0} ({:.2}x)",
+        dec.ratio_own_to_ffmpeg, dec.own_decode_swscale_fps_median, dec.ratio_swscale_to_ffmpeg
+    );
     let mut rows = Vec::new();
     for (mode, path) in [
         ("full frame", &clip),
@@ -405,6 +404,7 @@ pub fn generate(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> c
         threads: std::thread::available_parallelism().map_or(1, |t| t.get()),
         ffmpeg_decode_fps_median: ff_med,
         own_decode_fps_median: own_med,
+        decode: dec,
         rows,
         fft_floor: floor,
         peak_rss_mb_4k: peak_4k,
