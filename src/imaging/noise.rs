@@ -43,20 +43,30 @@ pub fn quantise(p: &[Vec<f32>; 3], w: usize, h: usize, x0: usize, y0: usize, enc
     let mut out = vec![0u8; w * h * 3];
     let s = (sigma / 255.0) as f32;
     let table = normal_table();
+    // Row by row in passes: encode (table lookups), add noise (one hash per pixel), then clip and
+    // round in a loop the compiler vectorises; the same operations per value as pixel by pixel.
+    let mut v: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0f32; w]);
     for y in 0..h {
-        let row_key = mix(key ^ ((y + y0) as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
-        let o = &mut out[y * w * 3..(y + 1) * w * 3];
-        for x in 0..w {
-            let i = y * w + x;
-            let mut v = [enc.encode(p[0][i]), enc.encode(p[1][i]), enc.encode(p[2][i])];
-            if sigma > 0.0 {
-                let h = mix(row_key ^ (x + x0) as u64);
-                for (c, vc) in v.iter_mut().enumerate() {
-                    *vc += s * table[(h >> (16 * c)) as usize & 0xFFFF];
-                }
+        for (c, vc) in v.iter_mut().enumerate() {
+            vc.iter_mut().zip(&p[c][y * w..(y + 1) * w]).for_each(|(o, &x)| *o = enc.encode(x));
+        }
+        if sigma > 0.0 {
+            let row_key = mix(key ^ ((y + y0) as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+            let [r, g, b] = &mut v;
+            for (x, ((r, g), b)) in r.iter_mut().zip(g.iter_mut()).zip(b.iter_mut()).enumerate() {
+                let hsh = mix(row_key ^ (x + x0) as u64);
+                *r += s * table[hsh as usize & 0xFFFF];
+                *g += s * table[(hsh >> 16) as usize & 0xFFFF];
+                *b += s * table[(hsh >> 32) as usize & 0xFFFF];
             }
-            for c in 0..3 {
-                o[x * 3 + c] = (v[c].clamp(0.0, 1.0) * 255.0 + 0.5) as u8;
+        }
+        let o = &mut out[y * w * 3..(y + 1) * w * 3];
+        for (c, vc) in v.iter().enumerate() {
+            for (x, &val) in vc.iter().enumerate() {
+                let q = val.clamp(0.0, 1.0) * 255.0 + 0.5;
+                // SAFETY: q is finite (clamped, then scaled) and in [0.5, 255.5]: an exact
+                // truncation, without the saturation checks of `as`.
+                o[x * 3 + c] = unsafe { q.to_int_unchecked::<i32>() } as u8;
             }
         }
     }
