@@ -678,6 +678,21 @@ pub fn deblur(width: usize, height: usize, repeats: usize) -> crate::Result<Vec<
     Ok(out)
 }
 
+/// The test clip a generation or decoding benchmark makes with the ffmpeg CLI.
+#[cfg(feature = "ffmpeg")]
+#[derive(clap::Args, Debug)]
+pub struct ClipArgs {
+    #[arg(long, default_value_t = 1280)]
+    width: usize,
+    #[arg(long, default_value_t = 720)]
+    height: usize,
+    #[arg(long, default_value_t = 240)]
+    fps: u32,
+    /// Length of the clip.
+    #[arg(long, default_value_t = 2.0)]
+    seconds: f64,
+}
+
 #[derive(clap::Subcommand, Debug)]
 pub enum BenchCommand {
     /// Deblurring speed (frames/s) of each shipped model on a 1280x720 frame, whole and in
@@ -707,15 +722,8 @@ pub enum BenchCommand {
     /// Decoding speed: the pipeline's decoder (decode + RGB planes, its own conversion and
     /// swscale's) beside FFmpeg's decode-only speed of the same clip, in alternating rounds.
     Decode {
-        #[arg(long, default_value_t = 1280)]
-        width: usize,
-        #[arg(long, default_value_t = 720)]
-        height: usize,
-        #[arg(long, default_value_t = 240)]
-        fps: u32,
-        /// Length of the clip.
-        #[arg(long, default_value_t = 2.0)]
-        seconds: f64,
+        #[command(flatten)]
+        clip: ClipArgs,
         /// Rounds; medians are reported.
         #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u16).range(1..=100))]
         repeats: u16,
@@ -724,15 +732,8 @@ pub enum BenchCommand {
     /// Generation speed (full frame and patch mode) beside FFmpeg's decode-only speed of the
     /// same clip, which it makes with the ffmpeg CLI; peak memory on a clip twice as long.
     Generate {
-        #[arg(long, default_value_t = 1280)]
-        width: usize,
-        #[arg(long, default_value_t = 720)]
-        height: usize,
-        #[arg(long, default_value_t = 240)]
-        fps: u32,
-        /// Length of the clip.
-        #[arg(long, default_value_t = 2.0)]
-        seconds: f64,
+        #[command(flatten)]
+        clip: ClipArgs,
         /// Repeats; the median is reported.
         #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u16).range(1..=100))]
         repeats: u16,
@@ -782,14 +783,14 @@ pub fn command(c: BenchCommand) -> anyhow::Result<()> {
             Ok(())
         }
         #[cfg(feature = "ffmpeg")]
-        BenchCommand::Decode { width, height, fps, seconds, repeats } => {
-            let r = decode(width, height, fps, seconds, repeats as usize)?;
+        BenchCommand::Decode { clip: c, repeats } => {
+            let r = decode(c.width, c.height, c.fps, c.seconds, repeats as usize)?;
             println!("{}", serde_json::to_string_pretty(&r)?);
             Ok(())
         }
         #[cfg(feature = "ffmpeg")]
-        BenchCommand::Generate { width, height, fps, seconds, repeats } => {
-            let r = generate(width, height, fps, seconds, repeats as usize)?;
+        BenchCommand::Generate { clip: c, repeats } => {
+            let r = generate(c.width, c.height, c.fps, c.seconds, repeats as usize)?;
             println!("{}", serde_json::to_string_pretty(&r)?);
             Ok(())
         }

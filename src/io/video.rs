@@ -159,12 +159,13 @@ impl VideoReader {
         let deep = self.bit_depth > 8;
         if let Some((sx, sy, full)) = fast_yuv(self.decoded.format()).filter(|_| !self.force_swscale) {
             // 8-bit Y'CbCr: converted here, straight into the frame's planes.
-            use crate::io::yuv::{Converter, Plane};
+            use crate::io::yuv::{Converter, Plane, Source};
             let full = full || self.decoded.color_range() == ff::color::Range::JPEG;
             let conv = Converter::new(matrix_of(&self.decoded), full, sx, sy);
             let (w, h) = (w as usize, h as usize);
             let d = &self.decoded;
             let plane = |i: usize| Plane { data: d.data(i), stride: d.stride(i) };
+            let src = Source { y: plane(0), cb: plane(1), cr: plane(2), w, h };
             if let Some(rects) = &self.regions {
                 let regions = rects
                     .iter()
@@ -172,7 +173,7 @@ impl VideoReader {
                     .map(|&(x0, y0, rw, rh)| {
                         let mut planes: [Vec<u8>; 3] = std::array::from_fn(|_| vec![0u8; rw * rh]);
                         let [r, g, b] = &mut planes;
-                        conv.convert_rect(plane(0), plane(1), plane(2), w, h, (x0, y0, rw, rh), [r, g, b]);
+                        conv.convert_rect(&src, (x0, y0, rw, rh), [r, g, b]);
                         crate::frame::Region8 { x0, y0, w: rw, h: rh, planes }
                     })
                     .collect();
@@ -180,7 +181,7 @@ impl VideoReader {
             }
             let mut planes: [Vec<u8>; 3] = std::array::from_fn(|_| vec![0u8; w * h]);
             let [r, g, b] = &mut planes;
-            conv.convert(plane(0), plane(1), plane(2), w, h, [r, g, b]);
+            conv.convert(&src, [r, g, b]);
             return Ok(Frame::new(w, h, FrameData::Planar8(planes)));
         }
         // Planar G, B, R straight from swscale: no interleaving to undo later.

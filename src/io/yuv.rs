@@ -30,6 +30,16 @@ pub struct Converter {
     pub sub_y: u32,
 }
 
+/// A decoded frame's three planes and its size (luma pixels).
+#[derive(Debug, Clone, Copy)]
+pub struct Source<'a> {
+    pub y: Plane<'a>,
+    pub cb: Plane<'a>,
+    pub cr: Plane<'a>,
+    pub w: usize,
+    pub h: usize,
+}
+
 /// One 8-bit plane: its bytes and the stride between rows.
 #[derive(Debug, Clone, Copy)]
 pub struct Plane<'a> {
@@ -50,73 +60,41 @@ impl Converter {
         Converter { rows: [row(0.0, r_cr), row(g_cb, g_cr), row(b_cb, 0.0)], sub_x, sub_y }
     }
 
-    /// Converts a `w x h` frame into three planes of `w x h` bytes (R, G, B), no padding.
+    /// Converts a whole frame into three planes of `w x h` bytes (R, G, B), no padding.
     /// The same arithmetic (no fused multiply-adds) on every CPU; AVX2 only makes it wider.
-    pub fn convert(&self, y: Plane, cb: Plane, cr: Plane, w: usize, h: usize, out: [&mut [u8]; 3]) {
-        let spans: Vec<Span> = (0..h).map(|yy| Span { y: yy, x0: 0, x1: w }).collect();
-        self.dispatch(y, cb, cr, w, h, &spans, (0, 0, w), out)
+    pub fn convert(&self, src: &Source, out: [&mut [u8]; 3]) {
+        let spans: Vec<Span> = (0..src.h).map(|yy| Span { y: yy, x0: 0, x1: src.w }).collect();
+        self.dispatch(src, &spans, (0, 0, src.w), out)
     }
 
-    /// Converts the `rw x rh` rectangle at (x0, y0) of a `w x h` frame (inside it) into three
-    /// planes of `rw x rh` bytes: each pixel the same as in [`Converter::convert`].
-    #[allow(clippy::too_many_arguments)]
-    pub fn convert_rect(
-        &self,
-        y: Plane,
-        cb: Plane,
-        cr: Plane,
-        w: usize,
-        h: usize,
-        rect: (usize, usize, usize, usize),
-        out: [&mut [u8]; 3],
-    ) {
+    /// Converts the `rw x rh` rectangle at (x0, y0) of a frame (inside it) into three planes
+    /// of `rw x rh` bytes: each pixel the same as in [`Converter::convert`].
+    pub fn convert_rect(&self, src: &Source, rect: (usize, usize, usize, usize), out: [&mut [u8]; 3]) {
         let (x0, y0, rw, rh) = rect;
         let spans: Vec<Span> = (y0..y0 + rh).map(|yy| Span { y: yy, x0, x1: x0 + rw }).collect();
-        self.dispatch(y, cb, cr, w, h, &spans, (x0, y0, rw), out)
+        self.dispatch(src, &spans, (x0, y0, rw), out)
     }
 
-    #[allow(clippy::too_many_arguments)]
-    fn dispatch(&self, y: Plane, cb: Plane, cr: Plane, w: usize, h: usize, spans: &[Span], at: (usize, usize, usize), out: [&mut [u8]; 3]) {
+    fn dispatch(&self, src: &Source, spans: &[Span], at: (usize, usize, usize), out: [&mut [u8]; 3]) {
         #[cfg(target_arch = "x86_64")]
         if std::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU has AVX2, checked just above.
-            return unsafe { self.convert_avx2(y, cb, cr, w, h, spans, at, out) };
+            return unsafe { self.convert_avx2(src, spans, at, out) };
         }
-        self.convert_any(y, cb, cr, w, h, spans, at, out)
+        self.convert_any(src, spans, at, out)
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    #[allow(clippy::too_many_arguments)]
-    unsafe fn convert_avx2(
-        &self,
-        y: Plane,
-        cb: Plane,
-        cr: Plane,
-        w: usize,
-        h: usize,
-        spans: &[Span],
-        at: (usize, usize, usize),
-        out: [&mut [u8]; 3],
-    ) {
-        self.convert_any(y, cb, cr, w, h, spans, at, out)
+    unsafe fn convert_avx2(&self, src: &Source, spans: &[Span], at: (usize, usize, usize), out: [&mut [u8]; 3]) {
+        self.convert_any(src, spans, at, out)
     }
 
     /// Converts each run; pixel (x, y) goes to `out[(y - oy) * stride + x - ox]` with `at` =
     /// (ox, oy, stride).
     #[inline(always)]
-    #[allow(clippy::too_many_arguments)]
-    fn convert_any(
-        &self,
-        y: Plane,
-        cb: Plane,
-        cr: Plane,
-        w: usize,
-        h: usize,
-        spans: &[Span],
-        at: (usize, usize, usize),
-        out: [&mut [u8]; 3],
-    ) {
+    fn convert_any(&self, src: &Source, spans: &[Span], at: (usize, usize, usize), out: [&mut [u8]; 3]) {
+        let Source { y, cb, cr, w, h } = *src;
         let cw = (w + (1 << self.sub_x) - 1) >> self.sub_x;
         let ch = (h + (1 << self.sub_y) - 1) >> self.sub_y;
         let (ox, oy, ostride) = at;
@@ -232,7 +210,7 @@ mod tests {
         for (ycc, rgb) in bars {
             let (y, u, v) = ([ycc[0]], [ycc[1]], [ycc[2]]);
             let (mut r, mut g, mut b) = ([0u8], [0u8], [0u8]);
-            conv.convert(plane(&y, 1), plane(&u, 1), plane(&v, 1), 1, 1, [&mut r, &mut g, &mut b]);
+            conv.convert(&Source { y: plane(&y, 1), cb: plane(&u, 1), cr: plane(&v, 1), w: 1, h: 1 }, [&mut r, &mut g, &mut b]);
             for (got, want) in [r[0], g[0], b[0]].iter().zip(rgb) {
                 assert!((*got as i32 - want as i32).abs() <= 1, "{ycc:?} -> {:?}, want {rgb:?}", [r[0], g[0], b[0]]);
             }
@@ -251,7 +229,7 @@ mod tests {
         v[4 + 1] = 228; // chroma (1, 1): luma 2..4 x 2..4
         let conv = Converter::new(Matrix::BT709, true, 1, 1);
         let (mut r, mut g, mut b) = (vec![0u8; 64], vec![0u8; 64], vec![0u8; 64]);
-        conv.convert(plane(&y, w), plane(&u, 4), plane(&v, 4), w, h, [&mut r, &mut g, &mut b]);
+        conv.convert(&Source { y: plane(&y, w), cb: plane(&u, 4), cr: plane(&v, 4), w: w, h: h }, [&mut r, &mut g, &mut b]);
         let k = 2.0 * (1.0 - 0.2126);
         let at = |x: usize, yy: usize| r[yy * w + x] as f32;
         assert_eq!(b, vec![100u8; 64], "Cb is neutral: blue equals luma");
@@ -268,7 +246,7 @@ mod tests {
         let c = vec![128u8; 6];
         let conv = Converter::new(Matrix::BT601, false, 1, 1);
         let (mut r, mut g, mut b) = (vec![0u8; 15], vec![0u8; 15], vec![0u8; 15]);
-        conv.convert(plane(&y, 5), plane(&c, 3), plane(&c, 3), 5, 3, [&mut r, &mut g, &mut b]);
+        conv.convert(&Source { y: plane(&y, 5), cb: plane(&c, 3), cr: plane(&c, 3), w: 5, h: 3 }, [&mut r, &mut g, &mut b]);
         let want = ((50.0 - 16.0) * 255.0 / 219.0f32 + 0.5) as u8;
         assert!(r.iter().chain(&g).chain(&b).all(|&v| v == want), "{r:?}");
     }
@@ -291,12 +269,12 @@ mod tests {
             let conv = Converter::new(Matrix::BT709, false, sx, sy);
             let mut whole = [vec![0u8; w * h], vec![0u8; w * h], vec![0u8; w * h]];
             let [a, b, c] = &mut whole;
-            conv.convert(plane(&y, w), plane(&u, cw), plane(&v, cw), w, h, [a, b, c]);
+            conv.convert(&Source { y: plane(&y, w), cb: plane(&u, cw), cr: plane(&v, cw), w: w, h: h }, [a, b, c]);
             for rect in [(0usize, 0usize, 5usize, 4usize), (3, 1, 9, 7), (12, 9, 25, 14), (36, 22, 1, 1), (1, 0, 36, 23), (0, 5, 37, 1)] {
                 let (x0, y0, rw, rh) = rect;
                 let mut part = [vec![0u8; rw * rh], vec![0u8; rw * rh], vec![0u8; rw * rh]];
                 let [a, b, c] = &mut part;
-                conv.convert_rect(plane(&y, w), plane(&u, cw), plane(&v, cw), w, h, rect, [a, b, c]);
+                conv.convert_rect(&Source { y: plane(&y, w), cb: plane(&u, cw), cr: plane(&v, cw), w: w, h: h }, rect, [a, b, c]);
                 for ch_ in 0..3 {
                     for yy in 0..rh {
                         for x in 0..rw {
