@@ -63,46 +63,45 @@ impl Converter {
     /// Converts a whole frame into three planes of `w x h` bytes (R, G, B), no padding.
     /// The same arithmetic (no fused multiply-adds) on every CPU; AVX2 only makes it wider.
     pub fn convert(&self, src: &Source, out: [&mut [u8]; 3]) {
-        let spans: Vec<Span> = (0..src.h).map(|yy| Span { y: yy, x0: 0, x1: src.w }).collect();
-        self.dispatch(src, &spans, (0, 0, src.w), out)
+        self.dispatch(src, (0, 0, src.w, src.h), out)
     }
 
     /// Converts the `rw x rh` rectangle at (x0, y0) of a frame (inside it) into three planes
     /// of `rw x rh` bytes: each pixel the same as in [`Converter::convert`].
     pub fn convert_rect(&self, src: &Source, rect: (usize, usize, usize, usize), out: [&mut [u8]; 3]) {
-        let (x0, y0, rw, rh) = rect;
-        let spans: Vec<Span> = (y0..y0 + rh).map(|yy| Span { y: yy, x0, x1: x0 + rw }).collect();
-        self.dispatch(src, &spans, (x0, y0, rw), out)
+        self.dispatch(src, rect, out)
     }
 
-    fn dispatch(&self, src: &Source, spans: &[Span], at: (usize, usize, usize), out: [&mut [u8]; 3]) {
+    fn dispatch(&self, src: &Source, rect: (usize, usize, usize, usize), out: [&mut [u8]; 3]) {
         #[cfg(target_arch = "x86_64")]
         if std::is_x86_feature_detected!("avx2") {
             // SAFETY: the CPU has AVX2, checked just above.
-            return unsafe { self.convert_avx2(src, spans, at, out) };
+            return unsafe { self.convert_avx2(src, rect, out) };
         }
-        self.convert_any(src, spans, at, out)
+        self.convert_any(src, rect, out)
     }
 
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2")]
-    unsafe fn convert_avx2(&self, src: &Source, spans: &[Span], at: (usize, usize, usize), out: [&mut [u8]; 3]) {
-        self.convert_any(src, spans, at, out)
+    unsafe fn convert_avx2(&self, src: &Source, rect: (usize, usize, usize, usize), out: [&mut [u8]; 3]) {
+        self.convert_any(src, rect, out)
     }
 
-    /// Converts each run; pixel (x, y) goes to `out[(y - oy) * stride + x - ox]` with `at` =
-    /// (ox, oy, stride).
+    /// Converts the rectangle (x0, y0, rw, rh); pixel (x, y) goes to `out[(y - y0) * rw + x - x0]`.
     #[inline(always)]
-    fn convert_any(&self, src: &Source, spans: &[Span], at: (usize, usize, usize), out: [&mut [u8]; 3]) {
+    fn convert_any(&self, src: &Source, rect: (usize, usize, usize, usize), out: [&mut [u8]; 3]) {
         let Source { y, cb, cr, w, h } = *src;
         let cw = (w + (1 << self.sub_x) - 1) >> self.sub_x;
         let ch = (h + (1 << self.sub_y) - 1) >> self.sub_y;
-        let (ox, oy, ostride) = at;
+        let (x0, y0, rw, rh) = rect;
+        let x1 = (x0 + rw).min(w);
+        if x0 >= x1 {
+            return;
+        }
         let mut vrow = [vec![0.0f32; cw], vec![0.0f32; cw]];
         let mut full = [vec![0.0f32; w], vec![0.0f32; w]];
         let [r, g, b] = out;
-        for &Span { y: yy, x0, x1 } in spans.iter().filter(|s| s.y < h && s.x0 < s.x1.min(w)) {
-            let x1 = x1.min(w);
+        for yy in y0..(y0 + rh).min(h) {
             // Vertical: the two chroma rows around this luma row and their weights, over the
             // chroma columns this run reads (its own and one either side).
             let (r0, r1, w1) = taps(yy, self.sub_y, ch);
@@ -114,7 +113,7 @@ impl Converter {
             }
             let lum = &y.data[yy * y.stride + x0..yy * y.stride + x1];
             let (u, v) = (&full[0][x0..x1], &full[1][x0..x1]);
-            let base = (yy - oy) * ostride + x0 - ox;
+            let base = (yy - y0) * rw;
             for (o, k) in [&mut *r, &mut *g, &mut *b].into_iter().zip(&self.rows) {
                 let o = &mut o[base..base + (x1 - x0)];
                 for (((o, &l), &u), &v) in o.iter_mut().zip(lum).zip(u).zip(v) {
@@ -126,14 +125,6 @@ impl Converter {
             }
         }
     }
-}
-
-/// A run of pixels of one row: `x0..x1` of row `y`.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-struct Span {
-    y: usize,
-    x0: usize,
-    x1: usize,
 }
 
 /// Chroma rows (`r0`, `r1`) and the weight of `r1` for luma row `y` (centre siting; edges
