@@ -50,6 +50,26 @@ fn bad_videos_fail_their_input_and_name_the_file() {
 }
 
 #[test]
+fn a_resolution_change_mid_stream_fails_the_input_naming_the_frame() {
+    // MPEG-TS streams concatenate byte by byte: 18 frames at the fixture's size, then 18 at
+    // another. Windows would mix sizes, and patch mode picked its rectangles by the first.
+    let d = scratch("resolution_change");
+    let a = clip("size_a.ts", &["-i", FIXTURE, "-frames:v", "18", "-c:v", "libx264", "-preset", "ultrafast"]);
+    let b = clip("size_b.ts", &["-i", FIXTURE, "-frames:v", "18", "-vf", "scale=176:144", "-c:v", "libx264", "-preset", "ultrafast"]);
+    let both = d.join("changes.ts");
+    std::fs::write(&both, [std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap()].concat()).unwrap();
+    for sets in [&[][..], &["transforms.patches.crop_first=false"][..]] {
+        let out = scratch("resolution_change_out");
+        let o = generate(&out, &[both.to_str().unwrap()], sets);
+        fails_naming(&o, both.to_str().unwrap());
+        fails_naming(&o, "frame 18 is 176x144");
+        fails_naming(&o, "resolution changes mid-stream are not supported");
+        assert_eq!(o.status.code(), Some(1), "{sets:?}");
+        no_shards(&out);
+    }
+}
+
+#[test]
 fn config_errors_name_the_key_and_write_nothing() {
     let out = scratch("bad_config");
     let o = generate(&out, &[FIXTURE], &["transforms.blur.windw=9"]);
