@@ -267,17 +267,15 @@ fn blur_core(
         let mut row = vec![0.0f32; ew];
         {
             let f = &factors[c];
-            let mut a = vec![0.0f32; outs.len()];
+            // The coefficients a_kr as f32, once per job: `a[k]` holds frame k's for every rank.
+            let a: Vec<Vec<f32>> = f.coeffs.iter().map(|ck| ck.iter().map(|&v| v as f32).collect()).collect();
             let y_lo = band * band_rows;
             let rows_here = outs[0].len() / wp;
             for ly in 0..rows_here {
                 let sy = reflect(ey + (y_lo + ly) as isize, fh);
                 for (k, frame) in frames.iter().enumerate() {
                     frame.linear_row(c, sy, span, &mut row);
-                    for (r, a) in a.iter_mut().enumerate() {
-                        *a = f.coeffs[k][r] as f32;
-                    }
-                    scale_add_rows(&a, &row, &mut outs, ly * wp, k == 0);
+                    scale_add_rows(&a[k], &row, &mut outs, ly * wp, k == 0);
                 }
             }
         }

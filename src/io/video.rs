@@ -241,6 +241,18 @@ impl VideoReader {
             match self.decoder.receive_frame(&mut self.decoded) {
                 Ok(()) => {
                     self.frames_decoded += 1;
+                    // Every reader (generate's windows and patch rectangles, deblur's encoder,
+                    // eval's windows) takes the stream's size for all of its frames.
+                    let (w, h) = (self.decoded.width() as usize, self.decoded.height() as usize);
+                    if (w, h) != (self.info.width, self.info.height) {
+                        self.done = true;
+                        return Err(format!(
+                            "frame {} is {w}x{h} but the stream is {}x{}: resolution changes mid-stream are not supported (split the video where it changes)",
+                            self.frames_decoded - 1,
+                            self.info.width,
+                            self.info.height
+                        ));
+                    }
                     return self.convert().map(Some);
                 }
                 Err(ff::Error::Eof) => {

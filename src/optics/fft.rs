@@ -200,20 +200,9 @@ const STRIP: usize = 8;
 /// transposed layout: `out[j * hp + y0 + i] = strip[i * wc + j]`.
 fn rows_to_columns(strip: &[Complex32], out: &mut [Complex32], wc: usize, hp: usize, y0: usize) {
     let n = strip.len() / wc;
-    if n == STRIP {
-        // Fixed-size arrays: no bounds checks in the inner loop.
-        let s: [&[Complex32]; STRIP] = std::array::from_fn(|i| &strip[i * wc..(i + 1) * wc]);
-        for (j, col) in out.chunks_exact_mut(hp).take(wc).enumerate() {
-            let d: &mut [Complex32; STRIP] = (&mut col[y0..y0 + STRIP]).try_into().expect("a strip");
-            for (i, o) in d.iter_mut().enumerate() {
-                *o = s[i][j];
-            }
-        }
-    } else {
-        for (i, row) in strip.chunks_exact(wc).enumerate() {
-            for (j, &v) in row.iter().enumerate() {
-                out[j * hp + y0 + i] = v;
-            }
+    for (j, col) in out.chunks_exact_mut(hp).take(wc).enumerate() {
+        for (i, o) in col[y0..y0 + n].iter_mut().enumerate() {
+            *o = strip[i * wc + j];
         }
     }
 }

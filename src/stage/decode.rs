@@ -83,14 +83,6 @@ impl Source for Decode {
                 let (w, h) = (reader.info.width, reader.info.height);
                 reader.regions = self.reads.as_ref().and_then(|r| r.rects(input.id, n, w, h));
                 match reader.next_frame() {
-                    Ok(Some(f)) if (f.width, f.height) != (w, h) => {
-                        // Windows mix frames, and patch mode chose its rectangles by the
-                        // stream's size: a frame of another size cannot be blurred with them.
-                        break Err(format!(
-                            "frame {n} is {}x{} but the stream is {w}x{h}: resolution changes mid-stream are not supported (split the video where it changes)",
-                            f.width, f.height
-                        ));
-                    }
                     Ok(Some(f)) => {
                         Counters::add(&self.counters.frames, 1);
                         if !out.send(Item::Frame(input.clone(), n, Arc::new(f))) {

@@ -67,6 +67,12 @@ fn a_resolution_change_mid_stream_fails_the_input_naming_the_frame() {
         assert_eq!(o.status.code(), Some(1), "{sets:?}");
         no_shards(&out);
     }
+    // The reader refuses the frame, so deblur (which encodes at the stream's size) does too,
+    // and leaves no output behind.
+    let sharp = d.join("sharp.mp4");
+    let o = run(&["deblur", both.to_str().unwrap(), "-o", sharp.to_str().unwrap(), "--progress", "never"]);
+    fails_naming(&o, "frame 18 is 176x144");
+    assert!(!sharp.exists() && !files(&d).iter().any(|f| f.contains("sharp")), "{:?}", files(&d));
 }
 
 #[test]
