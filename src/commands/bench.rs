@@ -443,7 +443,7 @@ fn time_burn(arch: crate::model::Arch, batch: usize, repeats: usize) -> (Vec<f64
     use burn::tensor::Device;
     let device = Device::flex().autodiff();
     let mut model = crate::model::Net::seeded(arch, &device, 7);
-    let mut optim = AdamConfig::new().init();
+    let mut optim = AdamConfig::new().with_epsilon(1e-8).init();
     let huber = HuberLossConfig::new(0.02).init();
     let (x, y) = (bench_data(batch, 0), bench_data(batch, 1));
     let mut steps = Vec::new();
@@ -480,7 +480,7 @@ fn time_fast(arch: crate::model::Arch, batch: usize, repeats: usize) -> (Vec<f64
     let mut steps = Vec::new();
     for r in 0..repeats + 1 {
         let t = Instant::now();
-        train_step(&mut net, &mut adam, &x, &y, 1e-4, 0.02);
+        train_step(&mut net, &mut adam, &x, &y, 1e-4, 0.02, 1e-8);
         if r > 0 {
             steps.push(t.elapsed().as_secs_f64());
         }

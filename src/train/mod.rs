@@ -246,7 +246,7 @@ enum Engine {
 
 impl Engine {
     /// One optimisation step; returns the loss before it.
-    fn step(&mut self, x: &T4, y: &T4, lr: f64, delta: f64) -> f64 {
+    fn step(&mut self, x: &T4, y: &T4, lr: f64, delta: f64, eps: f64) -> f64 {
         match self {
             Engine::Burn { device, model, optim, huber } => {
                 let loss = huber.forward(model.forward(x.to_tensor(device)), y.to_tensor(device), Reduction::Mean);
@@ -258,7 +258,7 @@ impl Engine {
                 }
                 lv
             }
-            Engine::Fast { net, adam, .. } => fast::train_step(net, adam, x, y, lr as f32, delta as f32),
+            Engine::Fast { net, adam, .. } => fast::train_step(net, adam, x, y, lr as f32, delta as f32, eps as f32),
         }
     }
 
@@ -308,6 +308,8 @@ pub struct Trainer {
     pub val_inputs: std::collections::BTreeSet<u64>,
     losses: Vec<LossPoint>,
     vals: Vec<ValPoint>,
+    /// The inputs of the latest `validate.bn_batches` training batches, for [`FastNet::recalibrate_bn`].
+    recent: std::collections::VecDeque<T4>,
     t0: Instant,
     t_train: Instant,
     bar: crate::progress::Bar,
@@ -396,7 +398,7 @@ impl Trainer {
             };
             Engine::Fast { net: Box::new(FastNet::from_net(&model)), adam, template: model }
         } else {
-            let mut optim = AdamConfig::new().init();
+            let mut optim = AdamConfig::new().with_epsilon(cfg.optim.adam_epsilon as f32).init();
             if let Some((path, b)) = optim_bytes {
                 optim = optim.from_bytes(burn::tensor::Bytes::from_bytes_vec(b)).map_err(|e| {
                     Error::Invalid(format!("{}: {e:?} (a checkpoint of optim.engine = \"fast\" resumes with that engine)", path.display()))
@@ -418,6 +420,7 @@ impl Trainer {
             val_inputs: Default::default(),
             losses: history.0,
             vals: history.1,
+            recent: Default::default(),
             t0: Instant::now(),
             t_train: Instant::now(),
             bar,
@@ -441,6 +444,20 @@ impl Trainer {
         }
     }
 
+    /// Keeps the inputs of a training batch for the BatchNorm recalibration; a resumed run
+    /// passes the batches it replays, so it recalibrates from the same ones.
+    pub fn remember(&mut self, batch: &[Pair]) {
+        let k = if matches!(self.engine, Engine::Fast { .. }) { self.cfg.validate.bn_batches } else { 0 };
+        keep_latest(&mut self.recent, k, batch);
+    }
+
+    /// Recomputes BatchNorm's running statistics from the remembered batches (fast engine).
+    fn recalibrate(&mut self) {
+        if let Engine::Fast { net, .. } = &mut self.engine {
+            net.recalibrate_bn(self.recent.make_contiguous());
+        }
+    }
+
     /// One optimisation step on `batch`, then validation and checkpoint when due.
     ///
     /// # Errors
@@ -461,7 +478,7 @@ impl Trainer {
         let x = to_t4(&lqs.iter().map(|v| v.as_slice()).collect::<Vec<_>>(), w, h);
         let y = to_t4(&gts.iter().map(|v| v.as_slice()).collect::<Vec<_>>(), w, h);
         let lr = cfg.lr_at(step);
-        let lv = self.engine.step(&x, &y, lr, cfg.optim.huber_delta);
+        let lv = self.engine.step(&x, &y, lr, cfg.optim.huber_delta, cfg.optim.adam_epsilon);
         if !lv.is_finite() {
             return Err(Error::Invalid(format!(
                 "step {}: the loss is {lv}; stopped. The last good checkpoint is listed in {}",
@@ -470,13 +487,24 @@ impl Trainer {
             )));
         }
         self.losses.push(LossPoint { step: step + 1, loss: lv, lr });
+        if matches!(self.engine, Engine::Fast { .. }) {
+            keep_latest(&mut self.recent, cfg.validate.bn_batches, batch);
+        }
         self.step += 1;
         let done = self.step;
-        if (done % cfg.validate.every == 0 || done == self.end) && !self.val.is_empty() {
+        let (validate, save) = (
+            (done % cfg.validate.every == 0 || done == self.end) && !self.val.is_empty(),
+            done % cfg.output.checkpoint_every == 0 || done == self.end,
+        );
+        if validate || save {
+            self.recalibrate();
+        }
+        let cfg = &self.cfg;
+        if validate {
             let (m, i) = self.engine.evaluate(&self.val);
             self.vals.push(ValPoint { step: done, model: m, input: i });
         }
-        if done % cfg.output.checkpoint_every == 0 || done == self.end {
+        if save {
             save_checkpoint(&self.dir, &self.engine.net(), self.engine.optim_bytes()?, &cfg.model, cfg.seed, done)?;
             self.write_report()?;
         }
@@ -498,6 +526,7 @@ impl Trainer {
         let res = if saved {
             Ok(())
         } else {
+            self.recalibrate();
             self.engine
                 .optim_bytes()
                 .and_then(|o| save_checkpoint(&self.dir, &self.engine.net(), o, &self.cfg.model, self.cfg.seed, done).map(|_| ()))
@@ -593,6 +622,18 @@ pub fn history_csv(r: &TrainReport) -> String {
     s
 }
 
+/// Appends a batch's inputs to `recent`, keeping the latest `k`.
+fn keep_latest(recent: &mut std::collections::VecDeque<T4>, k: usize, batch: &[Pair]) {
+    if k == 0 {
+        return;
+    }
+    if recent.len() == k {
+        recent.pop_front();
+    }
+    let (w, h) = (batch[0].w, batch[0].h);
+    recent.push_back(to_t4(&batch.iter().map(|p| p.lq.as_slice()).collect::<Vec<_>>(), w, h));
+}
+
 /// Runs training from shards.
 ///
 /// # Errors
@@ -621,9 +662,13 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
         )));
     }
     let mut stream = Stream::new(shards, cfg.seed, cfg.data.val_fraction, cfg.data.shuffle_buffer, size);
-    // Replay the data order up to the resumed step.
-    for _ in 0..t.step * cfg.optim.batch {
-        stream.next()?;
+    // Replay the data order up to the resumed step, remembering the batches BatchNorm is
+    // recalibrated from.
+    for step in 0..t.step {
+        let batch: Vec<Pair> = (0..cfg.optim.batch).map(|_| stream.next()).collect::<Result<_>>()?;
+        if step + cfg.validate.bn_batches >= t.step {
+            t.remember(&batch);
+        }
     }
     crate::signal::install();
     while !t.done() {
