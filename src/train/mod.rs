@@ -622,6 +622,42 @@ pub fn history_csv(r: &TrainReport) -> String {
     s
 }
 
+/// The validation samples: the `max` held-out samples of smallest seeded key hash, so they
+/// spread over every held-out input (the first ones in shard order came from one or two
+/// photographs), in bounded memory.
+struct ValPick {
+    max: usize,
+    seed: u64,
+    /// (hash, ordinal, sample): the ordinal breaks ties of equal keys (shards of different
+    /// window lengths cut from the same clips).
+    v: Vec<(u64, usize, Pair)>,
+    held: usize,
+}
+
+impl ValPick {
+    fn new(max: usize, seed: u64) -> ValPick {
+        ValPick { max, seed, v: Vec::new(), held: 0 }
+    }
+    fn push(&mut self, p: Pair) {
+        if self.max == 0 {
+            return;
+        }
+        self.v.push((hash(&[self.seed, hash_str(&p.key), hash_str("val-pick")]), self.held, p));
+        self.held += 1;
+        if self.v.len() >= 2 * self.max {
+            self.keep();
+        }
+    }
+    fn keep(&mut self) {
+        self.v.sort_unstable_by_key(|v| (v.0, v.1));
+        self.v.truncate(self.max);
+    }
+    fn finish(mut self) -> Vec<Pair> {
+        self.keep();
+        self.v.into_iter().map(|v| v.2).collect()
+    }
+}
+
 /// Appends a batch's inputs to `recent`, keeping the latest `k`.
 fn keep_latest(recent: &mut std::collections::VecDeque<T4>, k: usize, batch: &[Pair]) {
     if k == 0 {
@@ -645,16 +681,18 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
     if shards.is_empty() {
         return Err(Error::Invalid("data.shards: no .tar file found".into()));
     }
-    // Validation samples, and which inputs went where.
+    // Which inputs went where, and the validation samples.
     let mut size = None;
+    let mut val = ValPick::new(cfg.validate.max_samples, cfg.seed);
     for s in &shards {
         for p in read_shard(s, size)? {
             size.get_or_insert((p.w, p.h));
-            if !t.admit(&p) && t.val.len() < cfg.validate.max_samples {
-                t.val.push(p);
+            if !t.admit(&p) {
+                val.push(p);
             }
         }
     }
+    t.val = val.finish();
     if t.train_inputs.is_empty() {
         return Err(Error::Invalid(format!(
             "data: every input ({:?}) went to validation; lower data.val_fraction or add inputs",
@@ -707,6 +745,24 @@ mod tests {
         let e = load_model(&dir.join("model-0000002.safetensors"), &dev).err().expect("refused").to_string();
         assert!(e.contains("model-0000002.safetensors") && e.contains("1 weights are not finite"), "{e}");
         std::fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn validation_samples_spread_over_the_held_out_inputs_whatever_their_order() {
+        let pair = |src: u64, i: usize| Pair { key: format!("clip{src}_{i:06}"), source: src, w: 1, h: 1, lq: vec![0; 3], gt: vec![0; 3] };
+        let pick = |order: &mut dyn Iterator<Item = (u64, usize)>| {
+            let mut v = ValPick::new(16, 0);
+            order.for_each(|(s, i)| v.push(pair(s, i)));
+            v.finish().into_iter().map(|p| p.key).collect::<std::collections::BTreeSet<_>>()
+        };
+        // Four inputs of 100 samples each, in shard order: the first 16 would all be clip0's.
+        let a = pick(&mut (0..4u64).flat_map(|s| (0..100).map(move |i| (s, i))));
+        assert_eq!(a.len(), 16);
+        for s in 0..4 {
+            assert!(a.iter().any(|k| k.starts_with(&format!("clip{s}_"))), "no sample of clip{s}: {a:?}");
+        }
+        // The same samples in reverse order give the same set.
+        assert_eq!(pick(&mut (0..4u64).rev().flat_map(|s| (0..100).rev().map(move |i| (s, i)))), a);
     }
 
     #[test]
