@@ -29,7 +29,7 @@ pub enum ExportFormat {
 /// The model cannot be read or is not ours; the output cannot be written.
 pub fn command(a: ExportArgs) -> anyhow::Result<()> {
     let ExportFormat::Torch = a.format;
-    let path = if a.model.is_dir() { a.model.join("model.safetensors") } else { a.model.clone() };
+    let path = if a.model.is_dir() { crate::model::checkpoint::model_in(&a.model)? } else { a.model.clone() };
     let bytes = std::fs::read(&path).map_err(|e| Error::Io { path: path.clone(), cause: e })?;
     // Refuse what `deblur` would refuse (wrong architecture, non-finite weights).
     crate::model::checkpoint::load_model_bytes(&bytes, &path.display().to_string(), &burn::tensor::Device::flex())?;

@@ -81,16 +81,33 @@ pub fn save_checkpoint(dir: &Path, model: &Net, optim_bytes: Vec<u8>, arch: &Arc
 /// # Errors
 /// A missing or truncated file, or weights of another architecture (named).
 pub fn load_model(path: &Path, device: &Device) -> Result<(Net, Arch)> {
-    // A model folder (as shipped in models/) stands for its model.safetensors.
+    // A model folder (as shipped in models/) stands for its model.safetensors; a training
+    // run's output folder, for the checkpoint its latest.json names.
     let file;
     let path = if path.is_dir() {
-        file = path.join("model.safetensors");
+        file = model_in(path)?;
         file.as_path()
     } else {
         path
     };
     let bytes = std::fs::read(path).map_err(|e| Error::Io { path: path.to_path_buf(), cause: e })?;
     load_model_bytes(&bytes, &path.display().to_string(), device)
+}
+
+/// The model file a folder stands for: its `model.safetensors`, else (a `pipeline train` output
+/// folder) the checkpoint named by its `latest.json`.
+///
+/// # Errors
+/// An unreadable or malformed `latest.json`.
+pub fn model_in(dir: &Path) -> Result<std::path::PathBuf> {
+    let shipped = dir.join("model.safetensors");
+    let lp = dir.join("latest.json");
+    if shipped.exists() || !lp.exists() {
+        return Ok(shipped);
+    }
+    let bytes = std::fs::read(&lp).map_err(|e| Error::Io { path: lp.clone(), cause: e })?;
+    let latest: Latest = serde_json::from_slice(&bytes).map_err(|e| Error::Invalid(format!("{}: {e}", lp.display())))?;
+    Ok(dir.join(latest.model))
 }
 
 /// As [`load_model`], from the bytes of a model file; `name` names it in errors.

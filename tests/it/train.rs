@@ -134,8 +134,10 @@ fn save_then_load_gives_identical_outputs_and_resume_matches_an_uninterrupted_ru
     let (oa, ob) = (outputs(&a.join("model-0000006.safetensors")), outputs(&b.join("model-0000006.safetensors")));
     let worst = oa.iter().zip(&ob).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
     assert!(worst < 1e-5, "resumed weights differ: {worst}");
-    // Loading twice gives the same numbers (and they are not the untrained identity).
+    // Loading twice gives the same numbers (and they are not the untrained identity); the run's
+    // folder stands for its latest checkpoint, as a shipped model's folder does.
     assert_eq!(outputs(&a.join("model-0000006.safetensors")), oa);
+    assert_eq!(outputs(&a), oa);
     let x = probe(&Device::flex()).into_data().try_to_vec::<f32>().unwrap();
     assert!(oa.iter().zip(&x).any(|(p, q)| (p - q).abs() > 1e-4));
 }
