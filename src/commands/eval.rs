@@ -155,6 +155,9 @@ pub struct Record {
 /// Means over records.
 #[derive(Debug, Clone, Serialize)]
 pub struct Cell {
+    /// `Some`: the records of one video only.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub video: Option<String>,
     pub window: usize,
     /// `None`: the mean over every sigma (the paper's Table 1).
     pub sigma: Option<f64>,
@@ -178,6 +181,8 @@ pub struct EvalReport {
     pub table: Vec<Cell>,
     /// Per N and sigma.
     pub per_sigma: Vec<Cell>,
+    /// Per video and N, the mean over all sigmas: which footage carries the averages.
+    pub per_video: Vec<Cell>,
     pub records: Vec<Record>,
 }
 
@@ -196,9 +201,13 @@ fn mean_quality(q: &[&Quality]) -> Quality {
     }
 }
 
-fn cell(records: &[Record], window: usize, sigma: Option<f64>) -> Cell {
-    let sel: Vec<&Record> = records.iter().filter(|r| r.window == window && sigma.is_none_or(|s| r.sigma == s)).collect();
+fn cell(records: &[Record], video: Option<&str>, window: usize, sigma: Option<f64>) -> Cell {
+    let sel: Vec<&Record> = records
+        .iter()
+        .filter(|r| r.window == window && sigma.is_none_or(|s| r.sigma == s) && video.is_none_or(|v| r.video == v))
+        .collect();
     Cell {
+        video: video.map(str::to_string),
         window,
         sigma,
         count: sel.len(),
@@ -330,9 +339,20 @@ pub fn run(
         }
     }
     bar.finish();
-    let table = e.windows.iter().map(|&n| cell(&records, n, None)).collect();
-    let per_sigma =
-        e.windows.iter().flat_map(|&n| e.sigmas.iter().map(move |&s| (n, s))).map(|(n, s)| cell(&records, n, Some(s))).collect();
+    let table = e.windows.iter().map(|&n| cell(&records, None, n, None)).collect();
+    let per_sigma = e
+        .windows
+        .iter()
+        .flat_map(|&n| e.sigmas.iter().map(move |&s| (n, s)))
+        .map(|(n, s)| cell(&records, None, n, Some(s)))
+        .collect();
+    let mut videos: Vec<&str> = Vec::new();
+    for r in &records {
+        if !videos.contains(&r.video.as_str()) {
+            videos.push(&r.video);
+        }
+    }
+    let per_video = videos.iter().flat_map(|v| e.windows.iter().map(|&n| cell(&records, Some(v), n, None))).collect();
     let report = EvalReport {
         version: env!("CARGO_PKG_VERSION"),
         model: model.into(),
@@ -344,6 +364,7 @@ pub fn run(
         seconds: t0.elapsed().as_secs_f64(),
         table,
         per_sigma,
+        per_video,
         records,
     };
     let json = serde_json::to_vec_pretty(&report).expect("json");
@@ -362,12 +383,18 @@ fn pair(q: &Quality, y: bool) -> String {
 }
 
 fn rows(cells: &[Cell], with_sigma: bool) -> String {
+    let with_video = cells.iter().any(|c| c.video.is_some());
     let mut s = String::new();
+    s.push_str(if with_video { "| video " } else { "" });
     s.push_str(if with_sigma { "| N | sigma " } else { "| N " });
     s.push_str("| blurred input (RGB) | deblurred (RGB) | gain dB | blurred input (Y) | deblurred (Y) | gain dB | windows |\n");
+    s.push_str(if with_video { "|---" } else { "" });
     s.push_str(if with_sigma { "|---|---" } else { "|---" });
     s.push_str("|---|---|---|---|---|---|---|\n");
     for c in cells {
+        if let Some(v) = &c.video {
+            s.push_str(&format!("| {} ", Path::new(v).file_name().map_or(v.clone(), |f| f.to_string_lossy().into_owned())));
+        }
         s.push_str(&format!("| N={} ", c.window));
         if with_sigma {
             s.push_str(&format!("| {} ", c.sigma.unwrap_or(f64::NAN)));
@@ -404,6 +431,8 @@ pub fn markdown(r: &EvalReport) -> String {
     s.push_str(&rows(&r.table, false));
     s.push_str("\n## Per noise level\n\n");
     s.push_str(&rows(&r.per_sigma, true));
+    s.push_str(&format!("\n## Per video: mean over sigma in {{{}}}\n\n", sig.join(", ")));
+    s.push_str(&rows(&r.per_video, false));
     let ex: Vec<&str> = r.records.iter().filter_map(|x| x.example.as_deref()).collect();
     if !ex.is_empty() {
         s.push_str("\n## Examples (blurred | deblurred | sharp)\n\n");

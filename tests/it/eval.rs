@@ -3,6 +3,7 @@
 
 use crate::common::*;
 use pipeline::commands::eval::{GAP, LABEL_H};
+use std::path::Path;
 
 /// PSNR of two equally long 8-bit buffers, written out here rather than taken from the crate.
 fn psnr_by_hand(a: &[u8], b: &[u8]) -> f64 {
@@ -102,8 +103,16 @@ fn eval_numbers_match_a_hand_computation_on_one_frame() {
     let table = r["table"].as_array().unwrap();
     let want: f64 = records.iter().filter(|x| x["window"] == 7).map(|x| x["deblurred"]["psnr_y"].as_f64().unwrap()).sum::<f64>() / 2.0;
     assert!((table[0]["deblurred"]["psnr_y"].as_f64().unwrap() - want).abs() < 1e-9);
+    // One video: its per-video rows are the table's, named by the file.
+    let per_video = r["per_video"].as_array().unwrap();
+    assert_eq!(per_video.len(), 2, "1 video x 2 N");
+    assert!(per_video[0]["video"].as_str().unwrap().ends_with(Path::new(FIXTURE).file_name().unwrap().to_str().unwrap()));
+    assert_eq!(per_video[1]["deblurred"], table[1]["deblurred"]);
+    assert_eq!(per_video[0]["count"], 2);
     let md = std::fs::read_to_string(d.join("eval.md")).unwrap();
     assert!(md.contains("| N=7 ") && md.contains("| N=9 ") && md.contains("blurred input (RGB)"), "{md}");
+    let name = Path::new(FIXTURE).file_name().unwrap().to_str().unwrap();
+    assert!(md.contains("## Per video") && md.contains(&format!("| {name} | N=9 ")), "{md}");
 }
 
 #[test]
