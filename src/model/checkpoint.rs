@@ -48,7 +48,17 @@ impl ModuleMapper for IdSetter {
 /// Saves the model (safetensors; architecture, seed and step in the metadata) and the optimizer state.
 pub fn save_checkpoint(dir: &Path, model: &Net, optim_bytes: Vec<u8>, arch: &Arch, seed: u64, step: usize) -> Result<Latest> {
     let name = format!("model-{step:07}.safetensors");
-    let path = dir.join(&name);
+    save_model(&dir.join(&name), model, arch, seed, step)?;
+    let oname = format!("optim-{step:07}.bin");
+    write_atomic(&dir.join(&oname), |w| w.write_all(&optim_bytes))?;
+    let latest = Latest { step, model: name, optimizer: oname };
+    let bytes = serde_json::to_vec_pretty(&latest).expect("json");
+    write_atomic(&dir.join("latest.json"), |w| w.write_all(&bytes))?;
+    Ok(latest)
+}
+
+/// Saves a model file (safetensors; architecture, seed and step in the metadata).
+pub fn save_model(path: &Path, model: &Net, arch: &Arch, seed: u64, step: usize) -> Result<()> {
     let mut store = SafetensorsStore::from_file(&path)
         .metadata("pipeline_version", env!("CARGO_PKG_VERSION"))
         .metadata("arch", serde_json::to_string(arch).expect("json"))
@@ -65,14 +75,9 @@ pub fn save_checkpoint(dir: &Path, model: &Net, optim_bytes: Vec<u8>, arch: &Arc
     // burn writes the file owner-only (0600); a checkpoint is meant to be shared like any output.
     {
         use std::os::unix::fs::PermissionsExt;
-        let _ = std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o644));
+        let _ = std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o644));
     }
-    let oname = format!("optim-{step:07}.bin");
-    write_atomic(&dir.join(&oname), |w| w.write_all(&optim_bytes))?;
-    let latest = Latest { step, model: name, optimizer: oname };
-    let bytes = serde_json::to_vec_pretty(&latest).expect("json");
-    write_atomic(&dir.join("latest.json"), |w| w.write_all(&bytes))?;
-    Ok(latest)
+    Ok(())
 }
 
 /// Loads a model file written by `pipeline train` (or a model folder holding `model.safetensors`),
@@ -94,20 +99,25 @@ pub fn load_model(path: &Path, device: &Device) -> Result<(Net, Arch)> {
     load_model_bytes(&bytes, &path.display().to_string(), device)
 }
 
-/// The model file a folder stands for: its `model.safetensors`, else (a `pipeline train` output
-/// folder) the checkpoint named by its `latest.json`.
+/// The model file a folder stands for: its `model.safetensors` (a shipped model, or the
+/// averaged model of a finished run), unless the folder is a `pipeline train` output folder
+/// whose `latest.json` names a later checkpoint (a run resumed after it was written).
 ///
 /// # Errors
 /// An unreadable or malformed `latest.json`.
 pub fn model_in(dir: &Path) -> Result<std::path::PathBuf> {
-    let shipped = dir.join("model.safetensors");
+    let main = dir.join("model.safetensors");
     let lp = dir.join("latest.json");
-    if shipped.exists() || !lp.exists() {
-        return Ok(shipped);
+    if !lp.exists() {
+        return Ok(main);
     }
     let bytes = std::fs::read(&lp).map_err(|e| Error::Io { path: lp.clone(), cause: e })?;
     let latest: Latest = serde_json::from_slice(&bytes).map_err(|e| Error::Invalid(format!("{}: {e}", lp.display())))?;
-    Ok(dir.join(latest.model))
+    let main_step = std::fs::read(&main).ok().and_then(|b| read_meta(&b).ok()).and_then(|m| m["step"].as_str()?.parse::<usize>().ok());
+    Ok(match main_step {
+        Some(s) if s >= latest.step => main,
+        _ => dir.join(latest.model),
+    })
 }
 
 /// As [`load_model`], from the bytes of a model file; `name` names it in errors.

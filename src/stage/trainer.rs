@@ -75,7 +75,7 @@ impl TrainerSinkConfig {
             },
             optim: self.optim.clone(),
             validate: self.validate.clone(),
-            output: OutputConfig { dir: self.dir.clone(), checkpoint_every: self.checkpoint_every },
+            output: OutputConfig { dir: self.dir.clone(), checkpoint_every: self.checkpoint_every, average_last: 1 },
         }
     }
 }

@@ -114,6 +114,12 @@ pub struct OutputConfig {
     /// Steps between checkpoints (the last step is always saved).
     #[serde(default = "d_ckpt")]
     pub checkpoint_every: usize,
+    /// At the end, `model.safetensors` is the mean of the weights of the last this many
+    /// checkpoints (BatchNorm recalibrated on it), scored on the validation set in the report;
+    /// 1 writes no such file. Averaging evens out the checkpoint-to-checkpoint swings of a run
+    /// (models/README.md). The fast engine only.
+    #[serde(default = "d_one")]
+    pub average_last: usize,
 }
 
 /// A training file (`pipelines/train.toml`).
@@ -170,6 +176,9 @@ fn d_delta() -> f64 {
 fn d_every() -> usize {
     50
 }
+fn d_one() -> usize {
+    1
+}
 fn d_adam_eps() -> f64 {
     1e-8
 }
@@ -204,6 +213,10 @@ impl TrainConfig {
         c.range("optim.adam_epsilon", self.optim.adam_epsilon, 1e-12, 1.0);
         c.range_usize("validate.every", self.validate.every, 1, 100_000_000);
         c.range_usize("output.checkpoint_every", self.output.checkpoint_every, 1, 100_000_000);
+        c.range_usize("output.average_last", self.output.average_last, 1, 10_000);
+        if self.output.average_last > 1 && self.optim.engine != EngineKind::Fast {
+            c.fail("output.average_last", "averaging needs optim.engine = \"fast\" (BatchNorm is recalibrated on the mean)");
+        }
         c.errors
     }
 

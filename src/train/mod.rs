@@ -10,7 +10,7 @@ pub use crate::io::wds::{read_shard, Pair};
 use crate::io::write_atomic;
 use crate::metrics;
 pub use crate::model::checkpoint::{load_model, load_model_bytes};
-use crate::model::checkpoint::{read_meta, save_checkpoint, IdSetter, Latest};
+use crate::model::checkpoint::{read_meta, save_checkpoint, save_model, IdSetter, Latest};
 use crate::model::fast::{self, Adam, FastNet, T4};
 use crate::model::Net;
 use crate::rng::{hash, hash_str, unit, Rng};
@@ -225,7 +225,19 @@ pub struct TrainReport {
     pub metrics_convention: &'static str,
     pub loss: Vec<LossPoint>,
     pub validation: Vec<ValPoint>,
+    /// `model.safetensors`, the mean of the last checkpoints (`output.average_last`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub averaged: Option<Averaged>,
     pub config: TrainConfig,
+}
+
+/// The averaged model of a run and its validation score.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Averaged {
+    /// The checkpoints averaged, by step.
+    pub steps: Vec<usize>,
+    pub model: metrics::Quality,
+    pub input: metrics::Quality,
 }
 
 /// Options of one `pipeline train` call.
@@ -310,6 +322,7 @@ pub struct Trainer {
     vals: Vec<ValPoint>,
     /// The inputs of the latest `validate.bn_batches` training batches, for [`FastNet::recalibrate_bn`].
     recent: std::collections::VecDeque<T4>,
+    averaged: Option<Averaged>,
     t0: Instant,
     t_train: Instant,
     bar: crate::progress::Bar,
@@ -421,6 +434,7 @@ impl Trainer {
             losses: history.0,
             vals: history.1,
             recent: Default::default(),
+            averaged: None,
             t0: Instant::now(),
             t_train: Instant::now(),
             bar,
@@ -556,6 +570,7 @@ impl Trainer {
             metrics_convention: metrics::CONVENTION,
             loss: self.losses.clone(),
             validation: self.vals.clone(),
+            averaged: self.averaged.clone(),
             config: self.cfg.clone(),
         }
     }
@@ -575,9 +590,55 @@ impl Trainer {
     ///
     /// # Errors
     /// They cannot be written.
-    pub fn finish(self) -> Result<TrainReport> {
+    pub fn finish(mut self) -> Result<TrainReport> {
         self.bar.finish();
+        if self.cfg.output.average_last > 1 {
+            self.average()?;
+        }
         self.write_report()
+    }
+
+    /// Writes `model.safetensors`: the mean weights of the last `output.average_last`
+    /// checkpoints up to this step, BatchNorm recalibrated on it, and scores it.
+    fn average(&mut self) -> Result<()> {
+        let Engine::Fast { template, .. } = &self.engine else { return Ok(()) };
+        let mut steps: Vec<usize> = std::fs::read_dir(&self.dir)
+            .map_err(|e| Error::Io { path: self.dir.clone(), cause: e })?
+            .filter_map(|e| {
+                let name = e.ok()?.file_name().into_string().ok()?;
+                name.strip_prefix("model-")?.strip_suffix(".safetensors")?.parse::<usize>().ok()
+            })
+            .filter(|&s| s <= self.step)
+            .collect();
+        steps.sort_unstable();
+        let steps = steps.split_off(steps.len().saturating_sub(self.cfg.output.average_last));
+        let device = Device::flex();
+        let mut sum: Option<(FastNet, Vec<Vec<f64>>)> = None;
+        for &s in &steps {
+            let (net, _) = load_model(&self.dir.join(format!("model-{s:07}.safetensors")), &device)?;
+            let mut f = FastNet::from_net(&net);
+            let mut vals = Vec::new();
+            f.params(&mut |p, _| vals.push(p.to_vec()));
+            match &mut sum {
+                None => sum = Some((f, vals.iter().map(|v| v.iter().map(|&x| x as f64).collect()).collect())),
+                Some((_, acc)) => acc.iter_mut().zip(&vals).for_each(|(a, v)| a.iter_mut().zip(v).for_each(|(a, &x)| *a += x as f64)),
+            }
+        }
+        let Some((mut net, acc)) = sum else { return Ok(()) };
+        let n = steps.len() as f64;
+        let mut it = acc.into_iter();
+        net.params(&mut |p, _| p.iter_mut().zip(it.next().expect("same layout")).for_each(|(p, a)| *p = (a / n) as f32));
+        net.recalibrate_bn(self.recent.make_contiguous());
+        let (m, i) = evaluate_fast(&net, &self.val);
+        save_model(&self.dir.join("model.safetensors"), &net.write_into(template.clone()), &self.cfg.model, self.cfg.seed, self.step)?;
+        eprintln!(
+            "model.safetensors: the mean of checkpoints {:?}; validation PSNR {:.2} dB (the last checkpoint's: {})",
+            steps,
+            m.psnr_rgb,
+            self.vals.last().map_or("none".into(), |v| format!("{:.2}", v.model.psnr_rgb))
+        );
+        self.averaged = Some(Averaged { steps, model: m, input: i });
+        Ok(())
     }
 }
 

@@ -160,6 +160,31 @@ fn weights(path: &Path) -> Vec<f32> {
 }
 
 #[test]
+fn the_run_folders_model_is_the_mean_of_the_last_checkpoints_until_a_resume_passes_it() {
+    let shards = tiny_shards("train_avg_shards");
+    let d = scratch("train_avg");
+    let mut c = config(&shards, &d, "average_last = 3");
+    c.optim.steps = 12; // checkpoints at 3, 6, 9 and 12
+    let r = train(&c, &opts(None, false)).unwrap();
+    let avg = r.averaged.as_ref().expect("an averaged model in the report");
+    assert_eq!(avg.steps, vec![6, 9, 12]);
+    assert!(avg.model.psnr_rgb.is_finite() && avg.input.psnr_rgb.is_finite());
+    let w: Vec<Vec<f32>> = [6, 9, 12].iter().map(|s| weights(&d.join(format!("model-{s:07}.safetensors")))).collect();
+    assert!(w[0] != w[2], "the checkpoints must differ for the mean to mean anything");
+    let m = weights(&d.join("model.safetensors"));
+    let worst = m.iter().enumerate().map(|(i, v)| (v - (w[0][i] + w[1][i] + w[2][i]) / 3.0).abs()).fold(0.0f32, f32::max);
+    assert!(worst < 1e-6, "model.safetensors is not the mean of the last three checkpoints: {worst}");
+    // The folder stands for the averaged model ...
+    assert_eq!(weights(&d), m);
+    // ... until a resumed run (without averaging) writes a later checkpoint.
+    c.optim.steps = 15;
+    c.output.average_last = 1;
+    let r = train(&c, &opts(None, true)).unwrap();
+    assert!(r.averaged.is_none());
+    assert_eq!(weights(&d), weights(&d.join("model-0000015.safetensors")));
+}
+
+#[test]
 fn fine_tuning_starts_from_the_init_models_weights_step_and_history() {
     let shards = tiny_shards("train_init_shards");
     let (a, b) = (scratch("train_init_a"), scratch("train_init_b"));
