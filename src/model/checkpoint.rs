@@ -59,7 +59,7 @@ pub fn save_checkpoint(dir: &Path, model: &Net, optim_bytes: Vec<u8>, arch: &Arc
 
 /// Saves a model file (safetensors; architecture, seed and step in the metadata).
 pub fn save_model(path: &Path, model: &Net, arch: &Arch, seed: u64, step: usize) -> Result<()> {
-    let mut store = SafetensorsStore::from_file(&path)
+    let mut store = SafetensorsStore::from_file(path)
         .metadata("pipeline_version", env!("CARGO_PKG_VERSION"))
         .metadata("arch", serde_json::to_string(arch).expect("json"))
         .metadata("step", step.to_string())

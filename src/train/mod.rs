@@ -507,8 +507,8 @@ impl Trainer {
         self.step += 1;
         let done = self.step;
         let (validate, save) = (
-            (done % cfg.validate.every == 0 || done == self.end) && !self.val.is_empty(),
-            done % cfg.output.checkpoint_every == 0 || done == self.end,
+            (done.is_multiple_of(cfg.validate.every) || done == self.end) && !self.val.is_empty(),
+            done.is_multiple_of(cfg.output.checkpoint_every) || done == self.end,
         );
         if validate || save {
             self.recalibrate();
