@@ -86,8 +86,7 @@ pub fn save_model(path: &Path, model: &Net, arch: &Arch, seed: u64, step: usize)
 /// # Errors
 /// A missing or truncated file, or weights of another architecture (named).
 pub fn load_model(path: &Path, device: &Device) -> Result<(Net, Arch)> {
-    // A model folder (as shipped in models/) stands for its model.safetensors; a training
-    // run's output folder, for the checkpoint its latest.json names.
+    // A folder stands for the model file `model_in` picks.
     let file;
     let path = if path.is_dir() {
         file = model_in(path)?;

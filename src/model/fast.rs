@@ -1309,8 +1309,6 @@ mod tests {
         }
     }
 
-    /// The initial network of the training tests: built once per test, so that burn's shared
-    /// random generator (drawn lazily by other tests' modules) cannot differ between two runs.
     #[test]
     fn recalibrated_batchnorm_makes_inference_equal_training_mode_on_that_batch() {
         for arch in [super::super::Arch::Unet { base: 4 }, super::super::Arch::Shallow { width: 6 }] {
@@ -1341,6 +1339,8 @@ mod tests {
         }
     }
 
+    /// The initial network of the training tests: built once per test, so that burn's shared
+    /// random generator (drawn lazily by other tests' modules) cannot differ between two runs.
     fn initial(arch: super::super::Arch, dev: &Device) -> Net {
         Net::seeded(arch, dev, 21).zero_last_layer(dev)
     }
