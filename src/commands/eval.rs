@@ -202,10 +202,8 @@ fn mean_quality(q: &[&Quality]) -> Quality {
 }
 
 fn cell(records: &[Record], video: Option<&str>, window: usize, sigma: Option<f64>) -> Cell {
-    let sel: Vec<&Record> = records
-        .iter()
-        .filter(|r| r.window == window && sigma.is_none_or(|s| r.sigma == s) && video.is_none_or(|v| r.video == v))
-        .collect();
+    let sel: Vec<&Record> =
+        records.iter().filter(|r| r.window == window && sigma.is_none_or(|s| r.sigma == s) && video.is_none_or(|v| r.video == v)).collect();
     Cell {
         video: video.map(str::to_string),
         window,
@@ -340,12 +338,8 @@ pub fn run(
     }
     bar.finish();
     let table = e.windows.iter().map(|&n| cell(&records, None, n, None)).collect();
-    let per_sigma = e
-        .windows
-        .iter()
-        .flat_map(|&n| e.sigmas.iter().map(move |&s| (n, s)))
-        .map(|(n, s)| cell(&records, None, n, Some(s)))
-        .collect();
+    let per_sigma =
+        e.windows.iter().flat_map(|&n| e.sigmas.iter().map(move |&s| (n, s))).map(|(n, s)| cell(&records, None, n, Some(s))).collect();
     let mut videos: Vec<&str> = Vec::new();
     for r in &records {
         if !videos.contains(&r.video.as_str()) {

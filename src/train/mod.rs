@@ -501,15 +501,13 @@ impl Trainer {
             )));
         }
         self.losses.push(LossPoint { step: step + 1, loss: lv, lr });
-        if matches!(self.engine, Engine::Fast { .. }) {
-            keep_latest(&mut self.recent, cfg.validate.bn_batches, batch);
-        }
         self.step += 1;
         let done = self.step;
         let (validate, save) = (
             (done.is_multiple_of(cfg.validate.every) || done == self.end) && !self.val.is_empty(),
             done.is_multiple_of(cfg.output.checkpoint_every) || done == self.end,
         );
+        self.remember(batch);
         if validate || save {
             self.recalibrate();
         }
