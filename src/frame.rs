@@ -88,6 +88,31 @@ impl Frame {
         }
     }
 
+    /// The encoded 8-bit pixels of the `rw x rh` region at (x, y), interleaved RGB, if the
+    /// frame holds 8-bit data there: what encoding its linear light with its own curve and
+    /// quantising gives back exactly (the 8-bit round trip is the identity), without the
+    /// round trip. `None` for 16-bit and float frames.
+    pub fn encoded8_crop(&self, x: usize, y: usize, rw: usize, rh: usize) -> Option<Vec<u8>> {
+        let (planes, pw, px, py): (&[Vec<u8>; 3], usize, usize, usize) = match &*self.data {
+            FrameData::Planar8(p) => (p, self.width, 0, 0),
+            FrameData::Regions8(regions) => {
+                let r = regions.iter().find(|r| r.holds(y, x, x + rw) && r.holds(y + rh.max(1) - 1, x, x + rw))?;
+                (&r.planes, r.w, r.x0, r.y0)
+            }
+            _ => return None,
+        };
+        let mut out = vec![0u8; rw * rh * 3];
+        for (r, o) in out.chunks_exact_mut((rw * 3).max(1)).enumerate() {
+            let at = (y + r - py) * pw + x - px;
+            for (c, plane) in planes.iter().enumerate() {
+                for (i, &v) in plane[at..at + rw].iter().enumerate() {
+                    o[i * 3 + c] = v;
+                }
+            }
+        }
+        Some(out)
+    }
+
     /// Linear planes of the `rw x rh` region at (x, y) (inside the frame).
     pub fn linear_crop(&self, x: usize, y: usize, rw: usize, rh: usize) -> [Vec<f32>; 3] {
         std::array::from_fn(|c| {
@@ -205,4 +230,38 @@ pub enum Item {
     Sample(Box<Sample>),
     /// The input is done: Ok, or the reason it failed (its outputs are discarded).
     End(Arc<Input>, Result<(), String>),
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn an_8_bit_frames_own_bytes_are_its_re_encoded_linear_light() {
+        // Every code value in every channel, through each curve: the shortcut the blur stage
+        // takes for the sharp image equals encoding and quantising the linear light.
+        let (w, h) = (40, 21);
+        let planes: [Vec<u8>; 3] = std::array::from_fn(|c| (0..w * h).map(|i| ((i * 7 + c * 85) % 256) as u8).collect());
+        for curve in [Curve::Srgb, Curve::Gamma22, Curve::Identity] {
+            let full = Frame { curve: Some(curve), ..Frame::new(w, h, FrameData::Planar8(planes.clone())) };
+            let (x, y, rw, rh) = (5, 3, 30, 17);
+            let want = crate::imaging::to_8bit(&full.linear_crop(x, y, rw, rh), rw, rh, curve);
+            assert_eq!(full.encoded8_crop(x, y, rw, rh).as_deref(), Some(&want[..]), "{curve:?}");
+            // The same out of a patch-mode region that holds the rectangle.
+            let (x0, y0, ww, hh) = (2, 1, 36, 20);
+            let region = Region8 {
+                x0,
+                y0,
+                w: ww,
+                h: hh,
+                planes: std::array::from_fn(|c| {
+                    (0..hh).flat_map(|r| planes[c][(y0 + r) * w + x0..(y0 + r) * w + x0 + ww].to_vec()).collect()
+                }),
+            };
+            let part = Frame { curve: Some(curve), ..Frame::new(w, h, FrameData::Regions8(vec![region])) };
+            assert_eq!(part.encoded8_crop(x, y, rw, rh).as_deref(), Some(&want[..]), "{curve:?} region");
+        }
+        let float = Frame::new(2, 2, FrameData::Planar(std::array::from_fn(|_| vec![0.5; 4])));
+        assert!(float.encoded8_crop(0, 0, 2, 2).is_none());
+    }
 }

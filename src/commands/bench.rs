@@ -107,49 +107,71 @@ pub struct GenerateBench {
 }
 
 /// What a full-frame coded window must cost at least: its forward transforms (one per channel
-/// and kept rank) and three inverses, each timed alone at the window's padded size.
+/// and kept rank) and three inverses per tile of the planned tiling, each timed alone at the
+/// tile's padded size; beside it, the same transforms as one whole-frame plane.
 #[derive(Debug, serde::Serialize)]
 pub struct FftFloor {
+    /// Padded transform size of one tile (width, height), and the tiles per frame.
     pub padded: [usize; 2],
+    pub tiles: usize,
     pub ranks: [usize; 3],
     pub transforms_per_window: usize,
-    /// Median time of one forward transform with its product (one thread).
+    /// Median time of one tile's forward transform with its product (one thread).
     pub ms_per_transform: f64,
-    /// Sub-frames per second if the transforms were all there was, on every core.
+    /// Median time of one whole-frame plane's transform (one thread) and its padded size.
+    pub plane_ms_per_transform: f64,
+    pub plane_padded: [usize; 2],
+    /// Sub-frames per second if the tiles' transforms were all there was, on every core.
     pub subframes_per_s: f64,
     pub ratio_to_ffmpeg_decode: f64,
 }
 
+/// Median seconds of one forward transform with its product at `hp x wp` (one thread).
+fn time_transform(hp: usize, wp: usize, repeats: usize) -> f64 {
+    use crate::optics::fft::FftConv;
+    let mut conv = FftConv::new(hp, wp);
+    let mut img = vec![0.5f32; hp * wp];
+    let spec = conv.kernel_spectrum(&[1.0]);
+    let mut out = conv.zero_spectrum();
+    let mut times: Vec<f64> = (0..repeats.max(3))
+        .map(|_| {
+            img.fill(0.5);
+            let t = Instant::now();
+            conv.forward_mul_in_place(&mut img, &spec, &mut out);
+            t.elapsed().as_secs_f64()
+        })
+        .collect();
+    median(&mut times)
+}
+
 /// Times the transforms of one full-frame window of the default coded camera.
 fn fft_floor(w: usize, h: usize, window: usize, repeats: usize, ff_decode: f64) -> crate::Result<FftFloor> {
-    use crate::optics::fft::{fast_size, FftConv};
+    use crate::optics::fft::fast_size;
     let cam = std::sync::Arc::new(crate::optics::Camera::new(
         &Default::default(),
         &crate::optics::CameraConfig::new(crate::optics::CameraKind::PhaseCoded),
     ));
     let b = crate::imaging::blur::Blurrer::new(cam, window, 1, 1e-3)?;
-    let (hp, wp) = (fast_size(h + 2 * b.margin), fast_size(w + 2 * b.margin));
+    let m = b.margin;
+    let (tw, th) = crate::imaging::blur::plan_tiles(w, h, m);
+    let tiles = w.div_ceil(tw) * h.div_ceil(th);
+    let (hp, wp) = (fast_size(th + 2 * m), fast_size(tw + 2 * m));
+    let (php, pwp) = (fast_size(h + 2 * m), fast_size(w + 2 * m));
     let ranks = b.ranks();
-    let mut conv = FftConv::new(hp, wp);
-    let img = vec![0.5f32; hp * wp];
-    let spec = conv.kernel_spectrum(&vec![0.0f32; (2 * b.margin + 1).pow(2)]);
-    let mut out = vec![num_complex::Complex32::new(0.0, 0.0); spec.len()];
-    let mut times: Vec<f64> = (0..repeats.max(3))
-        .map(|_| {
-            let t = Instant::now();
-            conv.forward_mul(&img, &spec, &mut out);
-            t.elapsed().as_secs_f64()
-        })
-        .collect();
-    let t1 = median(&mut times);
+    // Enough repeats of a small tile for a stable median.
+    let t1 = time_transform(hp, wp, repeats.max(5) * tiles);
+    let plane = time_transform(php, pwp, repeats.max(5));
     let transforms = ranks.iter().sum::<usize>() + 3;
     let threads = rayon::current_num_threads() as f64;
-    let sps = window as f64 * threads / (transforms as f64 * t1);
+    let sps = window as f64 * threads / (transforms as f64 * tiles as f64 * t1);
     Ok(FftFloor {
         padded: [wp, hp],
+        tiles,
         ranks,
         transforms_per_window: transforms,
         ms_per_transform: t1 * 1e3,
+        plane_ms_per_transform: plane * 1e3,
+        plane_padded: [pwp, php],
         subframes_per_s: sps,
         ratio_to_ffmpeg_decode: sps / ff_decode,
     })
@@ -229,8 +251,8 @@ fn bench_plan(mode: &str, clip: &std::path::Path, out: &std::path::Path) -> crat
     if mode.contains("conventional") {
         sets.push("transforms.blur.camera.type=\"conventional\"".into());
     }
-    if mode.contains("tiles") {
-        sets.push("transforms.blur.tile=256".into());
+    if mode.contains("one plane") {
+        sets.push("transforms.blur.tile=1048576".into());
     }
     let mut table = crate::config::parse(super::generate::GENERATE_TOML, "pipelines/generate.toml (embedded)", &[])?;
     if mode.starts_with("full frame") {
@@ -331,7 +353,7 @@ pub fn generate(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> c
     let mut rows = Vec::new();
     for (mode, path) in [
         ("full frame", &clip),
-        ("full frame, one transform per plane (tile = 0)", &clip),
+        ("full frame, one plane (tile = 1048576)", &clip),
         ("full frame, conventional", &clip),
         ("patches", &clip),
         ("patches, clip twice as long", &long),
@@ -374,7 +396,8 @@ pub fn generate(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> c
     }
     let floor = fft_floor(w, h, 9, repeats.max(5), ff_med)?;
     eprintln!(
-        "bench: FFT floor of a coded window at {}x{} padded: {} transforms (ranks {:?} + 3 inverses) x {:.2} ms = {:.0} sub-frames/s on {} threads ({:.2}x ffmpeg decode-only)",
+        "bench: FFT floor of a coded window: {} tiles in transforms of {}x{}, {} transforms each (ranks {:?} + 3 inverses) x {:.2} ms = {:.0} sub-frames/s on {} threads ({:.2}x ffmpeg decode-only); one {}x{} plane instead: {:.2} ms a transform ({:.2} ms per tile's worth of pixels)",
+        floor.tiles,
         floor.padded[0],
         floor.padded[1],
         floor.transforms_per_window,
@@ -382,7 +405,11 @@ pub fn generate(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> c
         floor.ms_per_transform,
         floor.subframes_per_s,
         rayon::current_num_threads(),
-        floor.ratio_to_ffmpeg_decode
+        floor.ratio_to_ffmpeg_decode,
+        floor.plane_padded[0],
+        floor.plane_padded[1],
+        floor.plane_ms_per_transform,
+        floor.plane_ms_per_transform / floor.tiles as f64,
     );
     // Peak memory at 4K: two windows of full frames.
     let uhd = dir.join("bench-3840x2160.mp4");

@@ -46,11 +46,6 @@ struct Workspace {
     slots: [Vec<Vec<Complex32>>; 3],
     /// Each channel's inverse transform, `hp x wp` (kept, like the rest, between windows).
     full: [Vec<f32>; 3],
-    /// The extended region (w, h) the combined images last held. Outside it they must be zero:
-    /// in exact arithmetic what lies there never reaches the kept pixels, but through the FFT's
-    /// rounding it would, so a smaller region after a larger one clears them first (the result
-    /// then depends only on the region, not on which one this worker blurred before).
-    extent: (usize, usize),
 }
 
 /// Row bands per channel when building the combined images (parallel work units).
@@ -123,11 +118,11 @@ impl Blurrer {
 
     fn workspace(ranks: [usize; 3], hp: usize, wp: usize) -> Workspace {
         Workspace {
-            // Zeroed here, and again when a smaller region follows a larger one (`extent`).
+            // Written whole every window (the region, then zeros): the forward transforms use
+            // them as scratch.
             combined: std::array::from_fn(|c| (0..ranks[c]).map(|_| vec![0.0f32; hp * wp]).collect()),
             slots: std::array::from_fn(|c| (0..ranks[c]).map(|_| vec![Complex32::new(0.0, 0.0); hp * (wp / 2 + 1)]).collect()),
             full: std::array::from_fn(|_| vec![0.0f32; hp * wp]),
-            extent: (0, 0),
         }
     }
 
@@ -151,36 +146,53 @@ impl Blurrer {
         self.blur_rects(frames, &rects, (size, size))
     }
 
-    /// Blurs the whole frame in tiles of at most `tile x tile` pixels, overlap-save: each tile is
-    /// transformed with the kernel margin around it (mirrored at the frame's borders) and only the
-    /// tile is kept, so it equals the whole-frame blur up to float rounding. Tiles are spread over
-    /// the workers, each with its own cache-sized transforms and buffers; memory is a few tiles
-    /// per worker instead of whole-frame planes per channel and rank. The result does not depend
-    /// on the number of workers. A frame that fits in one tile is one plane, all workers on it.
+    /// Blurs the whole frame in tiles, overlap-save: each tile is transformed with the kernel
+    /// margin around it (mirrored at the frame's borders) and only the tile is kept, so it equals
+    /// the whole-frame blur up to float rounding. Tiles are spread over the workers, each with its
+    /// own cache-sized transforms and buffers; memory is a few tiles per worker instead of
+    /// whole-frame planes per channel and rank. The result does not depend on the number of
+    /// workers. `tile`: 0 plans the tiles ([`plan_tiles`]), else square tiles of at most
+    /// `tile x tile`. A frame that fits in one tile is one plane, all workers on it.
     pub fn blur_tiled(&mut self, frames: &[Arc<Frame>], tile: usize) -> [Vec<f32>; 3] {
         let (w, h) = (frames[0].width, frames[0].height);
-        if w <= tile && h <= tile {
+        let (tw, th) = if tile == 0 { plan_tiles(w, h, self.margin) } else { (tile.clamp(1, w), tile.clamp(1, h)) };
+        if w <= tw && h <= th {
             // One tile: the whole plane with every worker on it.
             return self.blur_region(frames, 0, 0, w, h);
         }
-        let (tw, th) = (tile.clamp(1, w), tile.clamp(1, h));
         let rects: Vec<_> =
             (0..h).step_by(th).flat_map(|y| (0..w).step_by(tw).map(move |x| (x, y, tw.min(w - x), th.min(h - y)))).collect();
-        let tiles = self.blur_rects(frames, &rects, (tw, th));
-        let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0f32; w * h]);
-        for (&(x, y, rw, rh), t) in rects.iter().zip(&tiles) {
-            for (o, p) in out.iter_mut().zip(t) {
+        // Each tile goes into the frame as soon as it is done: no second frame's worth of tiles.
+        let out: Mutex<[Vec<f32>; 3]> = Mutex::new(std::array::from_fn(|_| vec![0.0f32; w * h]));
+        self.blur_rects_with(frames, &rects, (tw, th), |i, t| {
+            let (x, y, rw, rh) = rects[i];
+            let mut o = out.lock().expect("frame planes");
+            for (o, p) in o.iter_mut().zip(&t) {
                 for yy in 0..rh {
                     o[(y + yy) * w + x..(y + yy) * w + x + rw].copy_from_slice(&p[yy * rw..(yy + 1) * rw]);
                 }
             }
-        }
-        out
+        });
+        out.into_inner().expect("frame planes")
     }
 
     /// Blurs each `(x, y, w, h)` rectangle (at most `max` = (w, h) in size) on its own, the
-    /// rectangles spread over the workers; all share one transform size.
+    /// rectangles spread over the workers; all share one transform size. Results in order.
     fn blur_rects(&mut self, frames: &[Arc<Frame>], rects: &[(usize, usize, usize, usize)], max: (usize, usize)) -> Vec<[Vec<f32>; 3]> {
+        let done: Mutex<Vec<Option<[Vec<f32>; 3]>>> = Mutex::new(vec![None; rects.len()]);
+        self.blur_rects_with(frames, rects, max, |i, t| done.lock().expect("results")[i] = Some(t));
+        done.into_inner().expect("results").into_iter().map(|t| t.expect("every rectangle blurred")).collect()
+    }
+
+    /// [`Blurrer::blur_rects`], handing rectangle `i`'s planes to `emit(i, planes)` on the worker
+    /// that blurred it.
+    fn blur_rects_with(
+        &mut self,
+        frames: &[Arc<Frame>],
+        rects: &[(usize, usize, usize, usize)],
+        max: (usize, usize),
+        emit: impl Fn(usize, [Vec<f32>; 3]) + Sync,
+    ) {
         assert_eq!(frames.len(), self.n);
         let m = self.margin;
         let (hp, wp) = (fast_size(max.1 + 2 * m), fast_size(max.0 + 2 * m));
@@ -196,17 +208,59 @@ impl Blurrer {
         // Whole rectangles per worker: each blurs its own with its own plan and buffers.
         install(&self.pool, || {
             use rayon::prelude::*;
-            rects
-                .par_iter()
-                .map(|&(x, y, rw, rh)| {
-                    let i = rayon::current_thread_index().unwrap_or(0) % pool.len();
+            rects.par_iter().enumerate().for_each(|(k, &(x, y, rw, rh))| {
+                let i = rayon::current_thread_index().unwrap_or(0) % pool.len();
+                let planes = {
                     let mut ws = pool[i].lock().expect("workspace");
                     let one = std::slice::from_ref(&convs[i % convs.len()]);
                     blur_core(factors, &spectra, one, &mut ws, frames, m, (x as isize, y as isize, rw, rh))
-                })
-                .collect()
+                };
+                emit(k, planes);
+            })
         })
     }
+}
+
+/// Largest side of a planned tile's padded transform. A 512 x 512 transform's spectrum (1 MB)
+/// stays in a core's cache; at 720p one whole-plane transform (864 x 1440 or 800 x 1350) cost
+/// 1.7 to 2.9 times as much per pixel as six of 432 x 512 (`bench generate`, same run).
+pub const TILE_FFT_MAX: usize = 512;
+
+/// The tile size (width, height) of `tile = 0` for a `w x h` frame and kernel `margin`: of the
+/// grids whose padded transforms ([`fast_size`] of tile plus both margins) are at most
+/// [`TILE_FFT_MAX`] on each side, the one with the least transformed area in all (fewer tiles
+/// on a tie). A frame no grid fits (a margin near the limit) is one plane. It depends on the
+/// frame and the kernels only, never on the thread count, so the output does not either.
+pub fn plan_tiles(w: usize, h: usize, margin: usize) -> (usize, usize) {
+    let sides = |len: usize| -> Vec<(usize, usize, usize)> {
+        // (tile side, tiles along the axis, padded side) for every distinct tile side.
+        let mut v: Vec<(usize, usize, usize)> = Vec::new();
+        for parts in 1..=len.max(1) {
+            let t = len.max(1).div_ceil(parts);
+            let p = fast_size(t + 2 * margin);
+            if v.last().is_some_and(|l| l.0 == t) {
+                continue;
+            }
+            if p <= TILE_FFT_MAX {
+                v.push((t, len.max(1).div_ceil(t), p));
+            }
+            if t <= 16 {
+                break;
+            }
+        }
+        v
+    };
+    let (xs, ys) = (sides(w), sides(h));
+    let mut best: Option<(usize, usize, usize, usize)> = None;
+    for &(tw, nx, wp) in &xs {
+        for &(th, ny, hp) in &ys {
+            let cand = (nx * ny * wp * hp, nx * ny, tw, th);
+            if best.is_none_or(|b| (cand.0, cand.1) < (b.0, b.1)) {
+                best = Some(cand);
+            }
+        }
+    }
+    best.map_or((w, h), |b| (b.2, b.3))
 }
 
 /// The margin a window's kernels read around each pixel (their largest half extent).
@@ -243,41 +297,49 @@ fn blur_core(
     let (fw, fh) = (frames[0].width, frames[0].height);
     let (ew, eh) = (rw + 2 * m, rh + 2 * m);
     let (ex, ey) = (x0 - m as isize, y0 - m as isize);
-    if ws.extent.0 > ew || ws.extent.1 > eh {
-        ws.combined.iter_mut().flatten().for_each(|b| b.fill(0.0));
-    }
-    ws.extent = (ew, eh);
     // Several plans: work spread over rayon's workers; one: all of it here (a patch).
     let parallel = convs.len() > 1;
     let workers = convs.len();
     // Phase 1: the combined images sum_k a_kr S_k of every channel and rank, by row bands;
-    // each job owns its rows of every rank's buffer.
+    // each job owns its rows of every rank's buffer. The region fills `ew` columns of the first
+    // `eh` rows; the rest of each buffer is zeroed every window, because the forward transforms
+    // below use the buffers as scratch.
+    let hp = ws.combined[0].first().map_or(0, |b| b.len() / wp);
     let bands = if workers == 1 { 1 } else { BANDS };
     let band_rows = eh.div_ceil(bands);
     let mut jobs: Vec<(usize, usize, Vec<&mut [f32]>)> = Vec::new();
     for (c, bufs) in ws.combined.iter_mut().enumerate() {
-        let mut per_rank: Vec<_> = bufs.iter_mut().map(|b| b[..eh * wp].chunks_mut(band_rows * wp)).collect();
+        let mut per_rank: Vec<_> = bufs
+            .iter_mut()
+            .map(|b| {
+                let (region, below) = b.split_at_mut(eh * wp);
+                below.fill(0.0);
+                region.chunks_mut(band_rows * wp)
+            })
+            .collect();
         for band in 0..eh.div_ceil(band_rows) {
             jobs.push((c, band, per_rank.iter_mut().map(|it| it.next().expect("band")).collect()));
         }
     }
+    debug_assert!(hp >= eh);
     let cols: Vec<usize> = (0..ew).map(|x| reflect(ex + x as isize, fw)).collect();
     let span = if ex >= 0 && ex as usize + ew <= fw { Cols::From(ex as usize) } else { Cols::Index(&cols) };
+    let n = frames.len();
     let phase1 = |(c, band, mut outs): (usize, usize, Vec<&mut [f32]>)| {
-        let mut row = vec![0.0f32; ew];
-        {
-            let f = &factors[c];
-            // The coefficients a_kr as f32, once per job: `a[k]` holds frame k's for every rank.
-            let a: Vec<Vec<f32>> = f.coeffs.iter().map(|ck| ck.iter().map(|&v| v as f32).collect()).collect();
-            let y_lo = band * band_rows;
-            let rows_here = outs[0].len() / wp;
-            for ly in 0..rows_here {
-                let sy = reflect(ey + (y_lo + ly) as isize, fh);
-                for (k, frame) in frames.iter().enumerate() {
-                    frame.linear_row(c, sy, span, &mut row);
-                    scale_add_rows(&a[k], &row, &mut outs, ly * wp, k == 0);
-                }
+        // The N frames' linear rows side by side (N x ew, in the first-level cache), then
+        // every rank's row from them in one pass.
+        let mut rows = vec![0.0f32; n * ew];
+        let f = &factors[c];
+        // The coefficients a_kr as f32 (frame-major: frame k's for every rank), once per job.
+        let a: Vec<f32> = f.coeffs.iter().flat_map(|ck| ck.iter().map(|&v| v as f32)).collect();
+        let y_lo = band * band_rows;
+        let rows_here = outs[0].len() / wp;
+        for ly in 0..rows_here {
+            let sy = reflect(ey + (y_lo + ly) as isize, fh);
+            for (frame, row) in frames.iter().zip(rows.chunks_exact_mut(ew)) {
+                frame.linear_row(c, sy, span, row);
             }
+            combine_rows(&a, &rows, ew, &mut outs, ly * wp, wp);
         }
     };
     if parallel {
@@ -286,15 +348,15 @@ fn blur_core(
     } else {
         jobs.into_iter().for_each(phase1);
     }
-    // Phase 2: one forward FFT per (channel, rank), times the basis spectrum, into its slot.
-    let mut jobs: Vec<(&[f32], &[Complex32], &mut Vec<Complex32>)> = Vec::new();
-    for (c, (bufs, slots)) in ws.combined.iter().zip(ws.slots.iter_mut()).enumerate() {
-        for (r, (img, slot)) in bufs.iter().zip(slots.iter_mut()).enumerate() {
+    // Phase 2: one forward FFT per (channel, rank), in place, times the basis spectrum.
+    let mut jobs: Vec<(&mut [f32], &[Complex32], &mut Vec<Complex32>)> = Vec::new();
+    for (c, (bufs, slots)) in ws.combined.iter_mut().zip(ws.slots.iter_mut()).enumerate() {
+        for (r, (img, slot)) in bufs.iter_mut().zip(slots.iter_mut()).enumerate() {
             jobs.push((img, &spectra[c][r], slot));
         }
     }
-    let phase2 = |(img, spec, slot): (&[f32], &[Complex32], &mut Vec<Complex32>)| {
-        worker(convs).lock().expect("conv lock").forward_mul(img, spec, slot);
+    let phase2 = |(img, spec, slot): (&mut [f32], &[Complex32], &mut Vec<Complex32>)| {
+        worker(convs).lock().expect("conv lock").forward_mul_in_place(img, spec, slot);
     };
     if parallel {
         use rayon::prelude::*;
@@ -326,33 +388,88 @@ fn blur_core(
     std::array::from_fn(|_| it.next().expect("3 channels"))
 }
 
-/// The combined images' inner loop: for each rank r, `o_r = a_r * row` (`first`) or
-/// `o_r += a_r * row` over the row at `at` of rank r's buffer. AVX2 only makes it wider: no fused
-/// multiply-adds, so the same bits on every CPU (about 1.4 times faster than SSE2 here).
-fn scale_add_rows(a: &[f32], row: &[f32], outs: &mut [&mut [f32]], at: usize, first: bool) {
+/// The combined images' inner loop: `rows` holds the N frames' rows (N x `ew`) and `a` the
+/// coefficients (N x R, frame-major); for each rank r the row at `at` of rank r's buffer becomes
+/// `sum_k a[k][r] rows[k]` over `ew` values, summed in frame order, then zeros up to `wp`.
+/// The AVX2 build keeps eight columns of up to eight ranks' sums in registers, so each frame
+/// value is loaded once rather than once per rank; it multiplies and adds separately (no
+/// fused multiply-add), so both builds give the same bits.
+fn combine_rows(a: &[f32], rows: &[f32], ew: usize, outs: &mut [&mut [f32]], at: usize, wp: usize) {
     #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx2") {
         // SAFETY: the CPU has AVX2, checked just above.
-        return unsafe { scale_add_rows_avx2(a, row, outs, at, first) };
+        unsafe { combine_rows_avx2(a, rows, ew, outs, at) };
+        outs.iter_mut().for_each(|o| o[at + ew..at + wp].fill(0.0));
+        return;
     }
-    scale_add_rows_any(a, row, outs, at, first)
+    combine_cols(a, rows, ew, outs, at, 0);
+    outs.iter_mut().for_each(|o| o[at + ew..at + wp].fill(0.0));
+}
+
+/// [`combine_rows`] for columns `x0..ew`, one value at a time.
+fn combine_cols(a: &[f32], rows: &[f32], ew: usize, outs: &mut [&mut [f32]], at: usize, x0: usize) {
+    let ranks = outs.len();
+    for (r, out) in outs.iter_mut().enumerate() {
+        for x in x0..ew {
+            let mut acc = a[r] * rows[x];
+            for k in 1..a.len() / ranks {
+                acc += a[k * ranks + r] * rows[k * ew + x];
+            }
+            out[at + x] = acc;
+        }
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn scale_add_rows_avx2(a: &[f32], row: &[f32], outs: &mut [&mut [f32]], at: usize, first: bool) {
-    scale_add_rows_any(a, row, outs, at, first)
+unsafe fn combine_rows_avx2(a: &[f32], rows: &[f32], ew: usize, outs: &mut [&mut [f32]], at: usize) {
+    let ranks = outs.len();
+    let mut r0 = 0;
+    while r0 < ranks {
+        let nr = (ranks - r0).min(8);
+        // SAFETY (all arms): AVX2 is enabled here; `combine_block` reads `rows` and writes
+        // `outs` within `ew` columns only.
+        unsafe {
+            match nr {
+                8 => combine_block::<8>(a, rows, ew, outs, at, r0),
+                7 => combine_block::<7>(a, rows, ew, outs, at, r0),
+                6 => combine_block::<6>(a, rows, ew, outs, at, r0),
+                5 => combine_block::<5>(a, rows, ew, outs, at, r0),
+                4 => combine_block::<4>(a, rows, ew, outs, at, r0),
+                3 => combine_block::<3>(a, rows, ew, outs, at, r0),
+                2 => combine_block::<2>(a, rows, ew, outs, at, r0),
+                _ => combine_block::<1>(a, rows, ew, outs, at, r0),
+            }
+        }
+        r0 += nr;
+    }
+    combine_cols(a, rows, ew, outs, at, ew / 8 * 8);
 }
 
-#[inline(always)]
-fn scale_add_rows_any(a: &[f32], row: &[f32], outs: &mut [&mut [f32]], at: usize, first: bool) {
-    for (out, &a) in outs.iter_mut().zip(a) {
-        let o = &mut out[at..at + row.len()];
-        if first {
-            o.iter_mut().zip(row).for_each(|(o, v)| *o = a * v);
-        } else {
-            o.iter_mut().zip(row).for_each(|(o, v)| *o += a * v);
+/// Ranks `r0..r0 + NR` of [`combine_rows_avx2`] over the columns that fill whole vectors.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn combine_block<const NR: usize>(a: &[f32], rows: &[f32], ew: usize, outs: &mut [&mut [f32]], at: usize, r0: usize) {
+    use std::arch::x86_64::{__m256, _mm256_add_ps, _mm256_loadu_ps, _mm256_mul_ps, _mm256_set1_ps, _mm256_setzero_ps, _mm256_storeu_ps};
+    let ranks = outs.len();
+    let n = a.len() / ranks;
+    assert!(rows.len() >= n * ew && r0 + NR <= ranks && outs.iter().all(|o| o.len() >= at + ew));
+    let mut x = 0;
+    while x + 8 <= ew {
+        let mut acc: [__m256; NR] = [_mm256_setzero_ps(); NR];
+        for k in 0..n {
+            // SAFETY: k * ew + x + 8 <= n * ew <= rows.len() (asserted above).
+            let v = unsafe { _mm256_loadu_ps(rows.as_ptr().add(k * ew + x)) };
+            for (j, s) in acc.iter_mut().enumerate() {
+                let p = _mm256_mul_ps(_mm256_set1_ps(a[k * ranks + r0 + j]), v);
+                *s = if k == 0 { p } else { _mm256_add_ps(*s, p) };
+            }
         }
+        for (j, s) in acc.iter().enumerate() {
+            // SAFETY: at + x + 8 <= at + ew <= the buffer's length (asserted above).
+            unsafe { _mm256_storeu_ps(outs[r0 + j].as_mut_ptr().add(at + x), *s) };
+        }
+        x += 8;
     }
 }
 
@@ -494,6 +611,29 @@ mod tests {
             outs.push(got);
         }
         assert!(outs[0] == outs[1], "tiles give the same bits on 1 and 2 workers");
+    }
+
+    #[test]
+    fn planned_tiles_keep_transforms_cache_sized_and_equal_one_plane() {
+        // 720p with the default camera's margin of 27: six tiles in transforms of 432 x 512.
+        assert_eq!(plan_tiles(1280, 720, 27), (427, 360));
+        let (tw, th) = plan_tiles(3840, 2160, 27);
+        assert!(fast_size(tw + 54) <= TILE_FFT_MAX && fast_size(th + 54) <= TILE_FFT_MAX, "4K tiles {tw}x{th}");
+        // A frame that fits one transform is one plane; a margin no tile fits is one plane too.
+        assert_eq!(plan_tiles(128, 96, 27), (128, 96));
+        assert_eq!(plan_tiles(900, 700, 250), (900, 700));
+        // A 700 x 60 frame needs two tiles across; planned tiles equal the one-plane blur.
+        let cam = Arc::new(Camera::new(&OpticsConfig::default(), &CameraConfig::new(CameraKind::PhaseCoded)));
+        let (w, h, n) = (700, 60, 3);
+        let fr = frames(n, w, h, 4);
+        let mut b = Blurrer::new(cam, n, 2, 1e-3).unwrap();
+        assert_eq!(plan_tiles(w, h, b.margin).0, 350);
+        let tiled = b.blur_tiled(&fr, 0);
+        let whole = b.blur_tiled(&fr, 1 << 20);
+        for c in 0..3 {
+            let d = tiled[c].iter().zip(&whole[c]).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+            assert!(d < 1e-5, "planned tiles vs one plane, channel {c}: {d}");
+        }
     }
 
     #[test]

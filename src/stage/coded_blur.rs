@@ -37,12 +37,13 @@ pub struct BlurConfig {
     /// (0: exact, one direction per distinct kernel).
     #[serde(default = "default_rank_tolerance")]
     pub rank_tolerance: f64,
-    /// Whole frames larger than this many pixels in either dimension are blurred in tiles of
-    /// this size, each transformed with the kernel margin around it (overlap-save: cache-sized
-    /// FFTs spread over the cores, memory bounded by the tile); smaller frames as one plane with
-    /// all cores on it. 0 (default): one plane up to 1920x1088, tiles of 256 above (measured:
-    /// one plane is faster at 720p, tiles are 2.5x faster and a third of the memory at 4K).
-    /// Either equals the direct convolution within float rounding. Patch mode ignores it.
+    /// Whole frames are blurred in tiles, each transformed with the kernel margin around it
+    /// (overlap-save: cache-sized FFTs spread over the cores, memory bounded by the tile).
+    /// 0 (default): planned per frame size, the least transformed area with transforms of at
+    /// most 512 px a side (720p: six tiles of 427x360 in transforms of 512x432, 1.7 to 2.9
+    /// times less time per pixel than one 720p plane); N: square tiles of N px; a size at least
+    /// the frame's: one plane with all cores on it. Every choice equals the direct convolution
+    /// within float rounding. Patch mode ignores it.
     #[serde(default)]
     pub tile: usize,
 }
@@ -60,15 +61,6 @@ impl BlurConfig {
         let c = Arc::new(Camera::new(&self.optics, &self.camera));
         cams.push((key, c.clone()));
         c
-    }
-}
-
-/// The tile size of `tile = 0` for a `w x h` frame (`usize::MAX`: one plane).
-pub fn auto_tile(w: usize, h: usize) -> usize {
-    if w * h <= 1920 * 1088 {
-        usize::MAX
-    } else {
-        256
     }
 }
 
@@ -134,7 +126,7 @@ pub struct CodedBlur {
     /// Patch selector when patches are cut before blurring.
     pub crop_first: Option<Selector>,
     pub counters: Arc<Counters>,
-    /// Tile size of whole-frame blurs (0: [`auto_tile`]), as [`BlurConfig::tile`].
+    /// Tile size of whole-frame blurs (0: [`crate::imaging::blur::plan_tiles`]), as [`BlurConfig::tile`].
     pub tile: usize,
     buf: VecDeque<(u64, Arc<Frame>)>,
     next_start: u64,
@@ -163,15 +155,14 @@ impl CodedBlur {
                     .zip(lqs)
                     .enumerate()
                     .map(|(i, ((x, y), lq))| {
-                        let gt = mid.linear_crop(x, y, sel.size, sel.size);
-                        Pair { patch: Some(i as u32), x, y, w: sel.size, h: sel.size, lq: Img::Linear(lq), gt: Img::Linear(gt) }
+                        let gt = sharp(mid, x, y, sel.size, sel.size);
+                        Pair { patch: Some(i as u32), x, y, w: sel.size, h: sel.size, lq: Img::Linear(lq), gt }
                     })
                     .collect()
             }
             None => {
-                let tile = if self.tile == 0 { auto_tile(w, h) } else { self.tile };
-                let lq = self.blurrer.blur_tiled(&frames, tile);
-                vec![Pair { patch: None, x: 0, y: 0, w, h, lq: Img::Linear(lq), gt: Img::Linear(mid.linear_crop(0, 0, w, h)) }]
+                let lq = self.blurrer.blur_tiled(&frames, self.tile);
+                vec![Pair { patch: None, x: 0, y: 0, w, h, lq: Img::Linear(lq), gt: sharp(mid, 0, 0, w, h) }]
             }
         };
         let kernels = self.blurrer.kernels();
@@ -195,6 +186,15 @@ impl CodedBlur {
         self.window += 1;
         out.send(Item::Sample(Box::new(sample)));
         Ok(())
+    }
+}
+
+/// The sharp image of a region: an 8-bit frame's own bytes (what re-encoding its linear light
+/// would give, exactly, at a fraction of the cost), else its linear light.
+fn sharp(frame: &Frame, x: usize, y: usize, w: usize, h: usize) -> Img {
+    match frame.encoded8_crop(x, y, w, h) {
+        Some(v) => Img::Encoded8(v),
+        None => Img::Linear(frame.linear_crop(x, y, w, h)),
     }
 }
 
