@@ -15,11 +15,14 @@ pub struct Frame {
     pub curve: Option<Curve>,
 }
 
-/// Columns to read from a row: a contiguous run from `start`, or explicit (mirrored) indices.
+/// Columns to read from a row: a contiguous run from `start`, explicit indices, or a run from
+/// `start` (which may lie outside the frame) mirrored at the frame's borders
+/// ([`crate::optics::fft::reflect`]).
 #[derive(Debug, Clone, Copy)]
 pub enum Cols<'a> {
     From(usize),
     Index(&'a [usize]),
+    Mirror(isize),
 }
 
 /// Tables as fixed-size arrays: a u8 (u16) index is always in range, so the lookups in
@@ -44,6 +47,21 @@ impl Frame {
     /// # Panics
     /// If the frame has not been through `linearize`.
     pub fn linear_row(&self, c: usize, y: usize, cols: Cols, out: &mut [f32]) {
+        if let Cols::Mirror(start) = cols {
+            // The columns inside the frame as one run; only the mirrored margins by index.
+            let (n, w) = (out.len(), self.width as isize);
+            let lo = (-start).clamp(0, n as isize) as usize;
+            let hi = (w - start).clamp(lo as isize, n as isize) as usize;
+            if hi > lo {
+                self.linear_row(c, y, Cols::From((start + lo as isize) as usize), &mut out[lo..hi]);
+            }
+            let outside: Vec<usize> = (0..lo).chain(hi..n).collect();
+            let ix: Vec<usize> = outside.iter().map(|&x| crate::optics::fft::reflect(start + x as isize, self.width)).collect();
+            let mut vals = vec![0.0f32; ix.len()];
+            self.linear_row(c, y, Cols::Index(&ix), &mut vals);
+            outside.iter().zip(vals).for_each(|(&x, v)| out[x] = v);
+            return;
+        }
         let curve = self.curve.expect("frame reached a linear stage without linearize");
         let base = y * self.width;
         macro_rules! fill {
@@ -55,6 +73,7 @@ impl Frame {
                         out.iter_mut().zip(&row[x0..x0 + n]).for_each(|(o, v)| *o = $map(*v))
                     }
                     Cols::Index(ix) => out.iter_mut().zip(ix).for_each(|(o, &i)| *o = $map(row[i])),
+                    Cols::Mirror(_) => unreachable!("resolved above"),
                 }
             }};
         }
@@ -68,6 +87,7 @@ impl Frame {
                 let (lo, hi) = match cols {
                     Cols::From(x0) => (x0, x0 + out.len()),
                     Cols::Index(ix) => (ix.iter().copied().min().unwrap_or(0), ix.iter().copied().max().map_or(0, |m| m + 1)),
+                    Cols::Mirror(_) => unreachable!("resolved above"),
                 };
                 let r = regions
                     .iter()
@@ -77,6 +97,7 @@ impl Frame {
                 match cols {
                     Cols::From(x0) => out.iter_mut().zip(&row[x0 - r.x0..]).for_each(|(o, v)| *o = t[*v as usize]),
                     Cols::Index(ix) => out.iter_mut().zip(ix).for_each(|(o, &i)| *o = t[row[i - r.x0] as usize]),
+                    Cols::Mirror(_) => unreachable!("resolved above"),
                 }
             }
             FrameData::Planar16(p) => {

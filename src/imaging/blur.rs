@@ -322,8 +322,7 @@ fn blur_core(
         }
     }
     debug_assert!(hp >= eh);
-    let cols: Vec<usize> = (0..ew).map(|x| reflect(ex + x as isize, fw)).collect();
-    let span = if ex >= 0 && ex as usize + ew <= fw { Cols::From(ex as usize) } else { Cols::Index(&cols) };
+    let span = if ex >= 0 && ex as usize + ew <= fw { Cols::From(ex as usize) } else { Cols::Mirror(ex) };
     let n = frames.len();
     let phase1 = |(c, band, mut outs): (usize, usize, Vec<&mut [f32]>)| {
         // The N frames' linear rows side by side (N x ew, in the first-level cache), then
