@@ -35,7 +35,7 @@ pub fn fast_size(n: usize) -> usize {
         let mut k = m;
         let mut count = [0usize; 3];
         for (i, p) in [2, 3, 5].into_iter().enumerate() {
-            while k % p == 0 {
+            while k.is_multiple_of(p) {
                 k /= p;
                 count[i] += 1;
             }
