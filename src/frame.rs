@@ -48,18 +48,24 @@ impl Frame {
     /// If the frame has not been through `linearize`.
     pub fn linear_row(&self, c: usize, y: usize, cols: Cols, out: &mut [f32]) {
         if let Cols::Mirror(start) = cols {
-            // The columns inside the frame as one run; only the mirrored margins by index.
+            // The columns inside the frame as one run through the fast path.
             let (n, w) = (out.len(), self.width as isize);
             let lo = (-start).clamp(0, n as isize) as usize;
             let hi = (w - start).clamp(lo as isize, n as isize) as usize;
             if hi > lo {
                 self.linear_row(c, y, Cols::From((start + lo as isize) as usize), &mut out[lo..hi]);
             }
-            let outside: Vec<usize> = (0..lo).chain(hi..n).collect();
-            let ix: Vec<usize> = outside.iter().map(|&x| crate::optics::fft::reflect(start + x as isize, self.width)).collect();
-            let mut vals = vec![0.0f32; ix.len()];
-            self.linear_row(c, y, Cols::Index(&ix), &mut vals);
-            outside.iter().zip(vals).for_each(|(&x, v)| out[x] = v);
+            // A mirrored column is usually one of the run's own (the margin is narrower than
+            // the frame): copy it; otherwise (a frame narrower than the margin) read it.
+            for x in (0..lo).chain(hi..n) {
+                let sx = crate::optics::fft::reflect(start + x as isize, self.width) as isize - start;
+                if (lo as isize..hi as isize).contains(&sx) {
+                    out[x] = out[sx as usize];
+                } else {
+                    let ix = [(start + sx) as usize];
+                    self.linear_row(c, y, Cols::Index(&ix), &mut out[x..x + 1]);
+                }
+            }
             return;
         }
         let curve = self.curve.expect("frame reached a linear stage without linearize");

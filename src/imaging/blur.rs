@@ -393,13 +393,11 @@ fn blur_core(
 /// fused multiply-add), so both builds give the same bits.
 fn combine_rows(a: &[f32], rows: &[f32], ew: usize, outs: &mut [&mut [f32]], at: usize, wp: usize) {
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2, checked just above.
-        unsafe { combine_rows_avx2(a, rows, ew, outs, at) };
-        outs.iter_mut().for_each(|o| o[at + ew..at + wp].fill(0.0));
-        return;
-    }
-    combine_cols(a, rows, ew, outs, at, 0);
+    // SAFETY: the CPU has AVX2 when it is called.
+    let done = if std::is_x86_feature_detected!("avx2") { unsafe { combine_rows_avx2(a, rows, ew, outs, at) } } else { 0 };
+    #[cfg(not(target_arch = "x86_64"))]
+    let done = 0;
+    combine_cols(a, rows, ew, outs, at, done);
     outs.iter_mut().for_each(|o| o[at + ew..at + wp].fill(0.0));
 }
 
@@ -419,7 +417,8 @@ fn combine_cols(a: &[f32], rows: &[f32], ew: usize, outs: &mut [&mut [f32]], at:
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn combine_rows_avx2(a: &[f32], rows: &[f32], ew: usize, outs: &mut [&mut [f32]], at: usize) {
+/// The columns that fill whole vectors; returns how many (the rest is the caller's).
+unsafe fn combine_rows_avx2(a: &[f32], rows: &[f32], ew: usize, outs: &mut [&mut [f32]], at: usize) -> usize {
     let ranks = outs.len();
     let mut r0 = 0;
     while r0 < ranks {
@@ -440,7 +439,7 @@ unsafe fn combine_rows_avx2(a: &[f32], rows: &[f32], ew: usize, outs: &mut [&mut
         }
         r0 += nr;
     }
-    combine_cols(a, rows, ew, outs, at, ew / 8 * 8);
+    ew / 8 * 8
 }
 
 /// Ranks `r0..r0 + NR` of [`combine_rows_avx2`] over the columns that fill whole vectors.

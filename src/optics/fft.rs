@@ -27,8 +27,8 @@ use std::sync::Arc;
 
 /// Smallest n' >= n of the form 2^a 3^b 5^c with b <= 3 and c <= 1. rustfft's transforms of
 /// lengths with more factors of 3 or 5 cost up to 1.8 times as much per point here (1350 wide
-/// at 720p, 486, 500, 450 against 512 and 480, `bench generate`'s probe of tile sizes), more
-/// than the few percent of points they save.
+/// at 720p, 486, 500, 450 against 512 and 480; medians of interleaved timing rounds on this AVX2
+/// machine), more than the few percent of points they save.
 pub fn fast_size(n: usize) -> usize {
     let mut m = n.max(1);
     loop {
@@ -156,11 +156,8 @@ impl FftConv {
         let mut buf = std::mem::take(&mut self.img);
         buf.resize(self.hp * self.wp, 0.0);
         buf.copy_from_slice(img);
-        self.forward(&mut buf, out);
+        self.forward_mul_in_place(&mut buf, kernel_spec, out);
         self.img = buf;
-        for (o, k) in out.iter_mut().zip(kernel_spec) {
-            *o *= k;
-        }
     }
 
     /// `out = F(img) * kernel_spec`, using `img` as scratch (left unspecified).
