@@ -51,6 +51,9 @@ struct Workspace {
 /// Row bands per channel when building the combined images (parallel work units).
 const BANDS: usize = 8;
 
+/// How many rows ahead phase 1 asks for the frames' bytes ([`Frame::prefetch_row`]).
+const PREFETCH_ROWS: usize = 2;
+
 impl Blurrer {
     /// `rank_tolerance`: relative Frobenius error allowed when factorising the kernels
     /// (0 keeps every direction: exact up to rounding).
@@ -331,8 +334,13 @@ fn blur_core(
         let a: Vec<f32> = f.coeffs.iter().flat_map(|ck| ck.iter().map(|&v| v as f32)).collect();
         let y_lo = band * band_rows;
         let rows_here = outs[0].len() / wp;
+        let (px0, px1) = ((ex.max(0) as usize).min(fw), ((ex + ew as isize).max(0) as usize).min(fw));
         for ly in 0..rows_here {
             let sy = reflect(ey + (y_lo + ly) as isize, fh);
+            if ly + PREFETCH_ROWS < rows_here {
+                let ahead = reflect(ey + (y_lo + ly + PREFETCH_ROWS) as isize, fh);
+                frames.iter().for_each(|f| f.prefetch_row(c, ahead, px0, px1));
+            }
             for (frame, row) in frames.iter().zip(rows.chunks_exact_mut(ew)) {
                 frame.linear_row(c, sy, span, row);
             }

@@ -21,6 +21,9 @@ impl Matrix {
     pub const FCC: Matrix = Matrix { kr: 0.30, kb: 0.11 };
 }
 
+/// How many rows ahead a conversion asks for its bytes ([`crate::frame::prefetch`]).
+const PREFETCH_ROWS: usize = 2;
+
 /// One conversion: matrix, range and chroma subsampling (log2 per axis: 1, 1 for 4:2:0).
 #[derive(Debug, Clone, Copy)]
 pub struct Converter {
@@ -101,7 +104,20 @@ impl Converter {
         let mut vrow = [vec![0.0f32; cw], vec![0.0f32; cw]];
         let mut full = [vec![0.0f32; w], vec![0.0f32; w]];
         let [r, g, b] = out;
+        let (cx0, cx1) = ((x0 >> self.sub_x).saturating_sub(1), ((x1 - 1) >> self.sub_x) + 2);
         for yy in y0..(y0 + rh).min(h) {
+            // The rows this one reads two rows from now, into the cache (a rectangle's rows are
+            // short and a stride apart: the hardware prefetchers miss them).
+            if yy + PREFETCH_ROWS < h {
+                let ahead = yy + PREFETCH_ROWS;
+                crate::frame::prefetch(&y.data[ahead * y.stride + x0..ahead * y.stride + x1]);
+                let (r0, r1, _) = taps(ahead, self.sub_y, ch);
+                for p in [cb, cr] {
+                    for row in [r0, r1] {
+                        crate::frame::prefetch(&p.data[row * p.stride + cx0.min(cw)..row * p.stride + cx1.min(cw)]);
+                    }
+                }
+            }
             // Vertical: the two chroma rows around this luma row and their weights, over the
             // chroma columns this run reads (its own and one either side).
             let (r0, r1, w1) = taps(yy, self.sub_y, ch);
