@@ -2,7 +2,7 @@
 //! inside the rendered kernels), by real FFTs with the products summed in the frequency domain
 //! and one inverse per channel. Borders are mirrored. Whole frames, regions, or patches plus the
 //! kernel margin (the same pixels as blurring the whole frame and cropping).
-use crate::frame::{Cols, Frame};
+use crate::frame::{Cols, Frame, PREFETCH_ROWS};
 use crate::optics::fft::{fast_size, reflect, FftConv};
 use crate::optics::lowrank::{factorise, LowRank};
 use crate::optics::{Camera, SubframeKernel};
@@ -50,9 +50,6 @@ struct Workspace {
 
 /// Row bands per channel when building the combined images (parallel work units).
 const BANDS: usize = 8;
-
-/// How many rows ahead phase 1 asks for the frames' bytes ([`Frame::prefetch_row`]).
-const PREFETCH_ROWS: usize = 2;
 
 impl Blurrer {
     /// `rank_tolerance`: relative Frobenius error allowed when factorising the kernels

@@ -21,9 +21,6 @@ impl Matrix {
     pub const FCC: Matrix = Matrix { kr: 0.30, kb: 0.11 };
 }
 
-/// How many rows ahead a conversion asks for its bytes ([`crate::frame::prefetch`]).
-const PREFETCH_ROWS: usize = 2;
-
 /// One conversion: matrix, range and chroma subsampling (log2 per axis: 1, 1 for 4:2:0).
 #[derive(Debug, Clone, Copy)]
 pub struct Converter {
@@ -91,8 +88,8 @@ impl Converter {
     }
 
     /// Converts the rectangle (x0, y0, rw, rh); pixel (x, y) goes to `out[(y - y0) * rw + x - x0]`.
-    #[inline(always)]
     /// `simd`: pack the output rows with AVX2 ([`rgb_row_avx2`]; only from `convert_avx2`).
+    #[inline(always)]
     fn convert_any(&self, src: &Source, rect: (usize, usize, usize, usize), out: [&mut [u8]; 3], simd: bool) {
         let Source { y, cb, cr, w, h } = *src;
         let cw = (w + (1 << self.sub_x) - 1) >> self.sub_x;
@@ -107,10 +104,10 @@ impl Converter {
         let [r, g, b] = out;
         let (cx0, cx1) = ((x0 >> self.sub_x).saturating_sub(1), ((x1 - 1) >> self.sub_x) + 2);
         for yy in y0..(y0 + rh).min(h) {
-            // The rows this one reads two rows from now, into the cache (a rectangle's rows are
+            // The rows read PREFETCH_ROWS rows from now, into the cache (a rectangle's rows are
             // short and a stride apart: the hardware prefetchers miss them).
-            if yy + PREFETCH_ROWS < h {
-                let ahead = yy + PREFETCH_ROWS;
+            if yy + crate::frame::PREFETCH_ROWS < h {
+                let ahead = yy + crate::frame::PREFETCH_ROWS;
                 crate::frame::prefetch(&y.data[ahead * y.stride + x0..ahead * y.stride + x1]);
                 let (r0, r1, _) = taps(ahead, self.sub_y, ch);
                 for p in [cb, cr] {
