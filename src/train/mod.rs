@@ -651,7 +651,28 @@ pub fn training_curves(path: &std::path::Path, r: &TrainReport) -> crate::Result
         points: r.loss.iter().map(|p| (p.step as f64, p.loss.max(1e-12).log10())).collect(),
         color: [0.95, 0.6, 0.2],
     };
-    crate::plot::panel(&mut c, (10, 10, 880, 300), &format!("LOG10 TRAINING LOSS ({})", r.arch.to_uppercase()), "STEP", &[loss]);
+    // Per-step losses of batch 8 scatter over half a decade; the trailing mean of 1% of the run
+    // shows the trend through them.
+    let k = (r.loss.len() / 100).max(1);
+    let mut sum = 0.0;
+    let mean_name = format!("MEAN OF {k} STEPS");
+    let mean = crate::plot::Series {
+        name: &mean_name,
+        points: r
+            .loss
+            .iter()
+            .enumerate()
+            .filter_map(|(i, p)| {
+                sum += p.loss;
+                if i >= k {
+                    sum -= r.loss[i - k].loss;
+                }
+                (i + 1 >= k).then(|| (p.step as f64, (sum / k as f64).max(1e-12).log10()))
+            })
+            .collect(),
+        color: [0.95, 0.95, 0.95],
+    };
+    crate::plot::panel(&mut c, (10, 10, 880, 300), &format!("LOG10 TRAINING LOSS ({})", r.arch.to_uppercase()), "STEP", &[loss, mean]);
     let model = crate::plot::Series {
         name: "MODEL",
         points: r.validation.iter().map(|v| (v.step as f64, v.model.psnr_rgb)).collect(),
@@ -782,6 +803,40 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_loss_curve_carries_its_running_mean() {
+        let cfg: TrainConfig =
+            toml::from_str("[model]\ntype = \"shallow\"\nwidth = 4\n[data]\nshards = [\"x\"]\n[output]\ndir = \"x\"\n").unwrap();
+        // Losses alternating between 1e-4 and 1e-2: the raw series fills the band between them,
+        // the mean of 20 steps (1% of 2000) is a flat line near log10(5e-3) in the middle.
+        let loss = (1..=2000).map(|step| LossPoint { step, loss: if step % 2 == 0 { 1e-4 } else { 1e-2 }, lr: 1e-3 }).collect();
+        let r = TrainReport {
+            version: "test",
+            arch: "shallow-4".into(),
+            parameters: 1,
+            steps: 2000,
+            resumed_from: None,
+            seconds: 1.0,
+            patches_per_s: 1.0,
+            train_inputs: Vec::new(),
+            val_inputs: Vec::new(),
+            val_samples: 0,
+            metrics_convention: "test",
+            loss,
+            validation: Vec::new(),
+            averaged: None,
+            config: cfg,
+        };
+        let path = std::env::temp_dir().join(format!("pipeline-curves-{}.png", std::process::id()));
+        training_curves(&path, &r).unwrap();
+        let (w, _, rgb) = crate::io::png::read_rgb8(&std::fs::read(&path).unwrap()).unwrap();
+        std::fs::remove_file(&path).ok();
+        // Near-white pixels (the mean's colour) in the loss panel's plot area, along one row.
+        let px = |x: usize, y: usize| &rgb[(y * w + x) * 3..(y * w + x) * 3 + 3];
+        let white: Vec<usize> = (60..300).filter(|&y| (200..800).filter(|&x| px(x, y).iter().all(|&v| v > 230)).count() > 300).collect();
+        assert!(!white.is_empty(), "no running-mean line in the loss panel");
+    }
 
     #[test]
     fn a_model_with_non_finite_weights_is_refused_by_name() {
