@@ -670,7 +670,7 @@ pub fn training_curves(path: &std::path::Path, r: &TrainReport) -> crate::Result
                 (i + 1 >= k).then(|| (p.step as f64, (sum / k as f64).max(1e-12).log10()))
             })
             .collect(),
-        color: [0.95, 0.95, 0.95],
+        color: [1.0, 1.0, 1.0],
     };
     crate::plot::panel(&mut c, (10, 10, 880, 300), &format!("LOG10 TRAINING LOSS ({})", r.arch.to_uppercase()), "STEP", &[loss, mean]);
     let model = crate::plot::Series {
@@ -832,10 +832,14 @@ mod tests {
         training_curves(&path, &r).unwrap();
         let (w, _, rgb) = crate::io::png::read_rgb8(&std::fs::read(&path).unwrap()).unwrap();
         std::fs::remove_file(&path).ok();
-        // Near-white pixels (the mean's colour) in the loss panel's plot area, along one row.
+        // Pure white (the mean's colour; axes and labels are 0.9 grey) along one row inside the
+        // loss panel's plot area (rows 34 to 286, the axes at its edges excluded).
         let px = |x: usize, y: usize| &rgb[(y * w + x) * 3..(y * w + x) * 3 + 3];
-        let white: Vec<usize> = (60..300).filter(|&y| (200..800).filter(|&x| px(x, y).iter().all(|&v| v > 230)).count() > 300).collect();
+        let white: Vec<usize> = (40..284).filter(|&y| (200..800).filter(|&x| px(x, y) == [255, 255, 255]).count() > 300).collect();
         assert!(!white.is_empty(), "no running-mean line in the loss panel");
+        // log10(5.05e-3) = -2.30 on an axis from -4 to -2: 85% of the way up the plot area.
+        let want = 286.0 - 0.85 * 252.0;
+        assert!(white.iter().all(|&y| (y as f64 - want).abs() < 4.0), "mean line at rows {white:?}, want about {want}");
     }
 
     #[test]
