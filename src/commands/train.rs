@@ -34,8 +34,13 @@ pub fn command(a: TrainArgs) -> anyhow::Result<()> {
     };
     let r = crate::train::train(&cfg, &crate::train::TrainOptions { resume, progress, stop_after: None })?;
     let last = r.validation.last();
+    // After a resume, the time and rate are this run's alone: say which steps they cover.
+    let this_run = match r.resumed_from {
+        Some(from) => format!(" (resumed from step {from}; steps {} to {} in", from + 1, r.steps),
+        None => " (in".to_string(),
+    };
     eprintln!(
-        "{}: {} steps in {:.0} s ({:.1} patches/s){} -> {}",
+        "{}: {} steps{this_run} {:.0} s, {:.1} patches/s){} -> {}",
         r.arch,
         r.steps,
         r.seconds,

@@ -314,3 +314,27 @@ fn shipped_models_load_and_deblur_a_patch() {
     }
     assert!(n >= 3, "{n} models shipped");
 }
+
+#[test]
+fn the_cli_summary_of_a_resumed_run_names_the_steps_its_time_covers() {
+    let shards = tiny_shards("train_cli_resume_shards");
+    let out = scratch("train_cli_resume");
+    let cfg_path = out.join("train.toml");
+    std::fs::write(
+        &cfg_path,
+        format!(
+            "seed = 1\n[model]\ntype = \"shallow\"\nwidth = 4\n[data]\nshards = [{:?}]\nval_fraction = 0.25\nshuffle_buffer = 16\n[optim]\nsteps = 4\nbatch = 2\n[validate]\nevery = 4\nmax_samples = 4\n[output]\ndir = {:?}\ncheckpoint_every = 2\n",
+            shards.display().to_string(),
+            out.join("run").display().to_string()
+        ),
+    )
+    .unwrap();
+    let cfg = cfg_path.to_str().unwrap();
+    let first = run(&["train", "--config", cfg, "--progress", "never"]);
+    assert!(first.status.success(), "{}", stderr(&first));
+    assert!(stderr(&first).contains("shallow-4: 4 steps (in "), "{}", stderr(&first));
+    let second = run(&["train", "--config", cfg, "--progress", "never", "--resume", "--set", "optim.steps=7"]);
+    assert!(second.status.success(), "{}", stderr(&second));
+    let e = stderr(&second);
+    assert!(e.contains("shallow-4: 7 steps (resumed from step 4; steps 5 to 7 in "), "{e}");
+}
