@@ -36,7 +36,8 @@ pub fn command(a: TrainArgs) -> anyhow::Result<()> {
     let last = r.validation.last();
     // After a resume, the time and rate are this run's alone: say which steps they cover.
     let this_run = match r.resumed_from {
-        Some(from) => format!(" (resumed from step {from}; steps {} to {} in", from + 1, r.steps),
+        Some(from) if from < r.steps => format!(" (resumed from step {from}; steps {} to {} in", from + 1, r.steps),
+        Some(_) => " (resumed when finished: no steps left; in".to_string(),
         None => " (in".to_string(),
     };
     eprintln!(

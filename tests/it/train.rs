@@ -337,4 +337,8 @@ fn the_cli_summary_of_a_resumed_run_names_the_steps_its_time_covers() {
     assert!(second.status.success(), "{}", stderr(&second));
     let e = stderr(&second);
     assert!(e.contains("shallow-4: 7 steps (resumed from step 4; steps 5 to 7 in "), "{e}");
+    // Resuming a finished run trains nothing and says so.
+    let third = run(&["train", "--config", cfg, "--progress", "never", "--resume", "--set", "optim.steps=7"]);
+    assert!(third.status.success(), "{}", stderr(&third));
+    assert!(stderr(&third).contains("shallow-4: 7 steps (resumed when finished: no steps left; in "), "{}", stderr(&third));
 }
