@@ -35,13 +35,13 @@ pub fn command(a: TrainArgs) -> anyhow::Result<()> {
     let r = crate::train::train(&cfg, &crate::train::TrainOptions { resume, progress, stop_after: None })?;
     let last = r.validation.last();
     // After a resume, the time and rate are this run's alone: say which steps they cover.
-    let this_run = match r.resumed_from {
-        Some(from) if from < r.steps => format!(" (resumed from step {from}; steps {} to {} in", from + 1, r.steps),
-        Some(_) => " (resumed when finished: no steps left; in".to_string(),
-        None => " (in".to_string(),
+    let resumed = match r.resumed_from {
+        Some(from) if from < r.steps => format!("resumed from step {from}; steps {} to {} ", from + 1, r.steps),
+        Some(_) => "resumed when finished: no steps left; ".to_string(),
+        None => String::new(),
     };
     eprintln!(
-        "{}: {} steps{this_run} {:.0} s, {:.1} patches/s){} -> {}",
+        "{}: {} steps ({resumed}in {:.0} s, {:.1} patches/s){} -> {}",
         r.arch,
         r.steps,
         r.seconds,

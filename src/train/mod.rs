@@ -654,21 +654,13 @@ pub fn training_curves(path: &std::path::Path, r: &TrainReport) -> crate::Result
     // Per-step losses of batch 8 scatter over half a decade; the trailing mean of 1% of the run
     // shows the trend through them.
     let k = (r.loss.len() / 100).max(1);
-    let mut sum = 0.0;
     let mean_name = format!("MEAN OF {k} STEPS");
     let mean = crate::plot::Series {
         name: &mean_name,
         points: r
             .loss
-            .iter()
-            .enumerate()
-            .filter_map(|(i, p)| {
-                sum += p.loss;
-                if i >= k {
-                    sum -= r.loss[i - k].loss;
-                }
-                (i + 1 >= k).then(|| (p.step as f64, (sum / k as f64).max(1e-12).log10()))
-            })
+            .windows(k)
+            .map(|w| (w[k - 1].step as f64, (w.iter().map(|p| p.loss).sum::<f64>() / k as f64).max(1e-12).log10()))
             .collect(),
         color: [1.0, 1.0, 1.0],
     };
@@ -804,10 +796,14 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
 mod tests {
     use super::*;
 
+    /// A shallow model of 4 filters; data and output paths that are never read.
+    fn tiny_config() -> TrainConfig {
+        toml::from_str("[model]\ntype = \"shallow\"\nwidth = 4\n[data]\nshards = [\"x\"]\n[output]\ndir = \"x\"\n").unwrap()
+    }
+
     #[test]
     fn the_loss_curve_carries_its_running_mean() {
-        let cfg: TrainConfig =
-            toml::from_str("[model]\ntype = \"shallow\"\nwidth = 4\n[data]\nshards = [\"x\"]\n[output]\ndir = \"x\"\n").unwrap();
+        let cfg = tiny_config();
         // Losses alternating between 1e-4 and 1e-2: the raw series fills the band between them,
         // the mean of 20 steps (1% of 2000) is a flat line near log10(5e-3) in the middle.
         let loss = (1..=2000).map(|step| LossPoint { step, loss: if step % 2 == 0 { 1e-4 } else { 1e-2 }, lr: 1e-3 }).collect();
@@ -846,8 +842,7 @@ mod tests {
     fn a_model_with_non_finite_weights_is_refused_by_name() {
         let dir = std::env::temp_dir().join(format!("pipeline-nan-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
-        let cfg: TrainConfig =
-            toml::from_str("[model]\ntype = \"shallow\"\nwidth = 4\n[data]\nshards = [\"x\"]\n[output]\ndir = \"x\"\n").unwrap();
+        let cfg = tiny_config();
         let dev = Device::flex();
         let net = Net::seeded(cfg.model, &dev, 1);
         save_checkpoint(&dir, &net, Vec::new(), &cfg.model, cfg.seed, 1).unwrap();
