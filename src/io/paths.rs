@@ -42,6 +42,33 @@ pub fn expand_paths(paths: &[String], exts: &[&str]) -> Result<Vec<PathBuf>, cra
     Ok(out)
 }
 
+/// Why `name` is not one plain file name (no `/`, no `..` or `.`, not absolute, not empty), or
+/// `None` if it is.
+pub fn not_plain(name: &str) -> Option<&'static str> {
+    let mut comps = Path::new(name).components();
+    let plain = matches!((comps.next(), comps.next()), (Some(std::path::Component::Normal(n)), None) if n == name);
+    (!plain || name.contains(['/', '\\', '\0'])).then_some("not a plain file name inside its folder")
+}
+
+/// The file `name` inside `dir`, where `name` was read from a file the tool trusts less than its
+/// command line (a manifest's shard list, a run folder's `latest.json`): it must be one plain
+/// file name ([`not_plain`]) and, if it exists, not a symbolic link, so that nothing outside
+/// `dir` is opened, sized or removed through it.
+///
+/// # Errors
+/// [`crate::Error::Untrusted`] naming `file` (where the name was read), `field` and the name.
+pub fn inside(dir: &Path, name: &str, file: &Path, field: &str) -> Result<PathBuf, crate::Error> {
+    let refuse = |why: &'static str| crate::Error::Untrusted { file: file.to_path_buf(), field: field.to_string(), name: name.to_string(), why };
+    if let Some(why) = not_plain(name) {
+        return Err(refuse(why));
+    }
+    let p = dir.join(name);
+    if std::fs::symlink_metadata(&p).is_ok_and(|m| m.file_type().is_symlink()) {
+        return Err(refuse("a symbolic link; only files inside the folder are read"));
+    }
+    Ok(p)
+}
+
 fn glob_match(pat: &str, s: &str) -> bool {
     let (p, s): (Vec<char>, Vec<char>) = (pat.chars().collect(), s.chars().collect());
     fn go(p: &[char], s: &[char]) -> bool {
@@ -59,6 +86,22 @@ fn glob_match(pat: &str, s: &str) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn names_from_trusted_files_stay_inside_their_folder() {
+        let dir = std::env::temp_dir().join(format!("pipeline-inside-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let from = dir.join("latest.json");
+        assert_eq!(inside(&dir, "model-0000001.safetensors", &from, "model").unwrap(), dir.join("model-0000001.safetensors"));
+        for bad in ["../victim.txt", "/etc/shadow", "a/b.tar", "..", ".", "", "./x.tar"] {
+            let e = inside(&dir, bad, &from, "model").err().unwrap_or_else(|| panic!("{bad:?} accepted")).to_string();
+            assert!(e.contains("latest.json") && e.contains("model") && e.contains(&format!("{bad:?}")), "{e}");
+        }
+        std::os::unix::fs::symlink("/etc/hostname", dir.join("link.tar")).unwrap();
+        let e = inside(&dir, "link.tar", &from, "model").unwrap_err().to_string();
+        assert!(e.contains("symbolic link"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn globs_match_file_names() {

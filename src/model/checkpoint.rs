@@ -18,6 +18,26 @@ pub struct Latest {
     pub optimizer: String,
 }
 
+impl Latest {
+    /// Reads `dir/latest.json`, or `None` where there is none. The file names it holds must be
+    /// plain names of files in `dir` (not links): the paths of the model and optimizer files.
+    ///
+    /// # Errors
+    /// An unreadable or malformed `latest.json`, or a name that leads outside `dir` (named).
+    pub fn read(dir: &Path) -> Result<Option<(Latest, std::path::PathBuf, std::path::PathBuf)>> {
+        let lp = dir.join("latest.json");
+        let bytes = match std::fs::read(&lp) {
+            Ok(b) => b,
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
+            Err(e) => return Err(Error::Io { path: lp, cause: e }),
+        };
+        let latest: Latest = serde_json::from_slice(&bytes).map_err(|e| Error::Invalid(format!("{}: {e}", lp.display())))?;
+        let model = crate::io::paths::inside(dir, &latest.model, &lp, "model")?;
+        let optimizer = crate::io::paths::inside(dir, &latest.optimizer, &lp, "optimizer")?;
+        Ok(Some((latest, model, optimizer)))
+    }
+}
+
 /// Collects the ids of the trainable parameters in traversal order.
 pub(crate) struct IdCollector(Vec<u64>);
 
@@ -103,19 +123,16 @@ pub fn load_model(path: &Path, device: &Device) -> Result<(Net, Arch)> {
 /// whose `latest.json` names a later checkpoint (a run resumed after it was written).
 ///
 /// # Errors
-/// An unreadable or malformed `latest.json`.
+/// An unreadable or malformed `latest.json`, or one naming a file outside `dir`.
 pub fn model_in(dir: &Path) -> Result<std::path::PathBuf> {
     let main = dir.join("model.safetensors");
-    let lp = dir.join("latest.json");
-    if !lp.exists() {
+    let Some((latest, model, _)) = Latest::read(dir)? else {
         return Ok(main);
-    }
-    let bytes = std::fs::read(&lp).map_err(|e| Error::Io { path: lp.clone(), cause: e })?;
-    let latest: Latest = serde_json::from_slice(&bytes).map_err(|e| Error::Invalid(format!("{}: {e}", lp.display())))?;
+    };
     let main_step = std::fs::read(&main).ok().and_then(|b| read_meta(&b).ok()).and_then(|m| m["step"].as_str()?.parse::<usize>().ok());
     Ok(match main_step {
         Some(s) if s >= latest.step => main,
-        _ => dir.join(latest.model),
+        _ => model,
     })
 }
 

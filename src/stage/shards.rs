@@ -156,12 +156,19 @@ pub struct ManifestShard {
 }
 
 impl ManifestShard {
-    /// Checks the file in `dir` against the recorded size and checksum.
+    /// Checks the file in `dir` against the recorded size and checksum. The name was checked to
+    /// be a plain file name when the manifest was loaded; a symbolic link is not followed.
     ///
     /// # Errors
-    /// Why it is not whole: missing, another size, another checksum.
+    /// Why it is not whole: missing, another size, another checksum, a link.
     pub fn verify(&self, dir: &Path) -> std::result::Result<(), String> {
+        if let Some(why) = crate::io::paths::not_plain(&self.name) {
+            return Err(format!("{:?}: {why}", self.name));
+        }
         let p = dir.join(&self.name);
+        if std::fs::symlink_metadata(&p).is_ok_and(|m| m.file_type().is_symlink()) {
+            return Err(format!("{}: a symbolic link, not a shard written here", self.name));
+        }
         let meta = std::fs::metadata(&p).map_err(|e| format!("{}: {e}", self.name))?;
         if let Some(b) = self.bytes {
             if meta.len() != b {
@@ -276,9 +283,21 @@ impl Manifest {
     pub fn load(dir: &Path, name: &str) -> crate::Result<Option<Manifest>> {
         let p = dir.join(name);
         match std::fs::read(&p) {
-            Ok(b) => serde_json::from_slice(&b)
-                .map(Some)
-                .map_err(|e| crate::Error::Invalid(format!("{}: not a pipeline manifest ({e})", p.display()))),
+            Ok(b) => {
+                let m: Manifest =
+                    serde_json::from_slice(&b).map_err(|e| crate::Error::Invalid(format!("{}: not a pipeline manifest ({e})", p.display())))?;
+                // Shard names are opened, sized and removed in `dir`: each must be a plain name
+                // there (a tampered manifest must not reach other files).
+                for (i, input) in m.inputs.iter().enumerate() {
+                    for (j, sh) in input.shards.iter().enumerate() {
+                        if let Some(why) = crate::io::paths::not_plain(&sh.name) {
+                            let field = format!("inputs[{i}].shards[{j}].name");
+                            return Err(crate::Error::Untrusted { file: p, field, name: sh.name.clone(), why });
+                        }
+                    }
+                }
+                Ok(Some(m))
+            }
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
             Err(e) => Err(crate::Error::Io { path: p, cause: e }),
         }

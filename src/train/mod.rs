@@ -382,9 +382,8 @@ impl Trainer {
         }
         if opts.resume {
             let lp = dir.join("latest.json");
-            let latest: Latest = serde_json::from_slice(&std::fs::read(&lp).map_err(|e| Error::Io { path: lp.clone(), cause: e })?)
-                .map_err(|e| Error::Invalid(format!("{}: {e}", lp.display())))?;
-            let mpath = dir.join(&latest.model);
+            let (latest, mpath, op) = Latest::read(&dir)?
+                .ok_or_else(|| Error::Io { path: lp, cause: std::io::Error::from(std::io::ErrorKind::NotFound) })?;
             let (net, _) = load_model(&mpath, &device)?;
             let bytes = std::fs::read(&mpath).map_err(|e| Error::Io { path: mpath.clone(), cause: e })?;
             let ids: Vec<u64> = read_meta(&bytes)
@@ -392,7 +391,6 @@ impl Trainer {
                 .and_then(|m| m["param_ids"].as_str().and_then(|s| serde_json::from_str(s).ok()))
                 .ok_or_else(|| Error::Invalid(format!("{}: no param_ids in the metadata; cannot resume the optimizer", mpath.display())))?;
             model = net.map(&mut IdSetter { ids, next: 0 });
-            let op = dir.join(&latest.optimizer);
             optim_bytes = Some((op.clone(), std::fs::read(&op).map_err(|e| Error::Io { path: op, cause: e })?));
             start = latest.step;
             // A run stopped before writing its report resumes without the history.

@@ -10,6 +10,7 @@ mod eval;
 #[cfg(feature = "train")]
 mod figure;
 mod generate;
+mod path_safety;
 mod psf_cli;
 mod shared_output;
 #[cfg(feature = "train")]
