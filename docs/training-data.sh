@@ -1,57 +1,197 @@
 #!/usr/bin/env bash
-# Makes the training photos, the held-out test clips and the training shards of the shipped
-# models (models/README.md). Needs: ffmpeg, the Debian package mate-backgrounds (GPL-2+ photos),
-# and scikit-image's sample photos (public domain / CC0; `pip install scikit-image`).
-#   bash docs/training-data.sh [SKIMAGE_DATA_DIR] [OUT=data]
+# Fetches and prepares the licence-clean photographs the models are trained and tested on, then
+# renders the training shards and the held-out test clips (models/README.md, docs/eval.md).
+#
+#   bash docs/training-data.sh [DATA=../data]      # everything; each step skips what exists
+#   STEP=photos bash docs/training-data.sh          # only fetch and crop (photos, objects, manifest)
+#   STEP=test   bash docs/training-data.sh          # only the test clips
+#
+# Sources, all from Debian's package archive (apt-get download; nothing is installed):
+#   training scenes: mate-backgrounds (nature photos, GPL-2+), plasma-workspace-wallpapers
+#     (GPL-2+), lomiri-wallpapers and lomiri-wallpapers-16.04 (CC-BY-SA / CC-BY, per file),
+#     extremetuxracer-data (terrain photo textures, GPL-2+), python3-skimage (scikit-image's
+#     sample photos; public domain / CC0, skimage/data/README.txt)
+#   training objects (cut-outs with alpha): tuxpaint-stamps-default (GPL-2; photographic stamps
+#     only: no `cartoon/`, `symbols/` or `space/`)
+#   TEST ONLY (no file of these packages is used in training): ukui-wallpapers (CC-BY-SA-3.0),
+#     lomiri-wallpapers-20.04 (CC-BY-SA-4.0 / CC-BY-4.0), python3-sklearn's sample photos
+#     china.jpg and flower.jpg (CC-BY-2.0)
+# None of the classic benchmark sets (Kodak, BSDS, McMaster, Set5/14, Urban100, DIV2K).
+# $DATA/photos/MANIFEST.tsv lists every prepared file: its source package and version, licence,
+# original path and use (train, test, object).
 set -euo pipefail
-SK=${1:-$(python3 -c 'import skimage.data, os; print(os.path.dirname(skimage.data.__file__))')}
-OUT=${2:-data}
-BG=/usr/share/backgrounds/mate/nature
+cd "$(dirname "$0")/.."
+DATA=${1:-${DATA:-../data}}
+STEP=${STEP:-all}
 PIPELINE=${PIPELINE:-target/release/pipeline}
-mkdir -p "$OUT/photos/train" "$OUT/test"
-# Held apart by source photo, never by patch: Storm, YellowFlower, Wood and coffee are test only.
-TRAIN=("$BG/Aqua.jpg" "$BG/Blinds.jpg" "$BG/Dune.jpg" "$BG/FreshFlower.jpg" "$BG/Garden.jpg" "$BG/GreenMeadow.jpg"
-       "$BG/LadyBird.jpg" "$BG/RainDrops.jpg" "$BG/TwoWings.jpg" "$SK/astronaut.png" "$SK/chelsea.png" "$SK/rocket.jpg"
-       "$SK/grass.png" "$SK/gravel.png" "$SK/brick.png")
-TEST=("$BG/Storm.jpg" "$BG/YellowFlower.jpg" "$BG/Wood.jpg" "$SK/coffee.png")
-# Ten 384x288 crops per training photo: even ones at 720p scale (short side 720, or the photo's
-# own if smaller), odd ones at the photo's full resolution (finer texture per pixel).
-for f in "${TRAIN[@]}"; do
-  b=$(basename "${f%.*}")
-  for i in 0 1 2 3 4 5 6 7 8 9; do
-    fx=$(( (i * 37) % 10 )); fy=$(( (i * 53) % 10 ))
-    scale="scale=-2:'min(720,ih)',"; [ $((i % 2)) -eq 1 ] && scale=""
-    ffmpeg -v error -y -i "$f" -vf "${scale}format=rgb24,crop=384:288:(iw-384)*$fx/9:(ih-288)*$fy/9" -frames:v 1 "$OUT/photos/train/${b}_$i.png"
+mkdir -p "$DATA/debs" "$DATA/src" "$DATA/photos/train" "$DATA/photos/test" "$DATA/objects"
+DATA=$(cd "$DATA" && pwd)
+
+TRAIN_PKGS=(mate-backgrounds plasma-workspace-wallpapers lomiri-wallpapers lomiri-wallpapers-16.04 extremetuxracer-data python3-skimage tuxpaint-stamps-default)
+TEST_PKGS=(ukui-wallpapers lomiri-wallpapers-20.04 python3-sklearn)
+
+photos() {
+  (cd "$DATA/debs" && for p in "${TRAIN_PKGS[@]}" "${TEST_PKGS[@]}"; do
+    ls "${p}"_*.deb >/dev/null 2>&1 || apt-get download "$p" 2>/dev/null
+  done)
+  for deb in "$DATA"/debs/*.deb; do
+    p=$(basename "$deb"); p=${p%%_*}
+    [ -d "$DATA/src/$p" ] || dpkg-deb -x "$deb" "$DATA/src/$p"
   done
-done
-# Test clips: each held-out photo panned by the camera at 240 fps (real photographs, real
-# FFmpeg-encoded video; 1 to 5 px per frame in four directions).
-k=0
-for f in "${TEST[@]}"; do
-  b=$(basename "${f%.*}")
-  case $k in
-    0) X='100+3*n'; Y='60+1*n' ;;
-    1) X='400-2*n'; Y='80+2*n' ;;
-    2) X='200+5*n'; Y='150' ;;
-    *) X='120+1*n'; Y='200-3*n' ;;
-  esac
-  ffmpeg -v error -y -loop 1 -framerate 240 -i "$f" -vf "scale=-2:'min(720,ih)',crop=320:240:'$X':'$Y',format=yuv420p" -r 240 -frames:v 60 \
-    -c:v libx264 -crf 12 "$OUT/test/$b-pan-240fps.mp4"
-  k=$((k + 1))
-done
-# Training shards: the same clips through the coded and the conventional camera.
-"$PIPELINE" run pipelines/train-data.toml -o "$OUT/coded" --set "sources.stills.paths=[\"$OUT/photos/train\"]"
-"$PIPELINE" run pipelines/train-data.toml -o "$OUT/conventional" --set "sources.stills.paths=[\"$OUT/photos/train\"]" \
-  --set transforms.blur.camera.type=conventional
-# Windows of 7, 11 and 13 frames too (models/README.md): $WINDOWS windows per clip (8 for the U-Net 32
-# runs, 7,200 pairs each; 4 for the fine-tuning of the shipped models, 3,600), a seed of their own per
-# N (other motions), the same for both cameras.
-WINDOWS=${WINDOWS:-8}
-for n in 7 11 13; do
-  for cam in phase_coded conventional; do
-    d="$OUT/conventional-n$n"; [ $cam = phase_coded ] && d="$OUT/coded-n$n"
-    "$PIPELINE" run pipelines/train-data.toml -o "$d" --set "sources.stills.paths=[\"$OUT/photos/train\"]" \
-      --set seed=$((11 + n)) --set sources.stills.frames=$((WINDOWS * n)) --set transforms.blur.window=$n \
-      --set transforms.blur.camera.type=$cam --set sinks.shards.prefix=n$n
+  python3 - "$DATA" <<'PY'
+import fnmatch, glob, os, re, subprocess, sys
+data = sys.argv[1]
+src = f"{data}/src"
+
+def version(pkg):
+    deb = glob.glob(f"{data}/debs/{pkg}_*.deb")[0]
+    return os.path.basename(deb).split("_")[1].replace("%3a", ":")
+
+def licence(pkg, path):
+    """The DEP-5 stanza of the package's copyright file whose Files: glob matches the path."""
+    text = open(glob.glob(f"{src}/{pkg}/usr/share/doc/*/copyright")[0], errors="replace").read()
+    best = None
+    for stanza in re.split(r"\n\s*\n", text):
+        f = re.search(r"^Files:\s*(.+?)(?=^\S)", stanza + "\nX", re.M | re.S)
+        lic = re.search(r"^License:\s*(\S+)", stanza, re.M)
+        if not f or not lic:
+            continue
+        for g in f.group(1).split():
+            if g == "*" or fnmatch.fnmatch(path, "*" + g) or os.path.basename(g) == os.path.basename(path):
+                if g != "*" or best is None:
+                    best = lic.group(1)
+    return best or "see copyright"
+
+def probe(path):
+    out = subprocess.run(["ffprobe", "-v", "error", "-select_streams", "v", "-show_entries", "stream=width,height",
+                          "-of", "csv=p=0", path], capture_output=True, text=True).stdout.strip().split(",")
+    return int(out[0]), int(out[1])
+
+def crop(path, out, scale_short, fx, fy, cw=384, ch=288):
+    """A cw x ch crop at relative position (fx, fy) of the photo scaled to short side scale_short
+    (0: native), area-averaged (no aliasing)."""
+    if os.path.exists(out):
+        return True
+    w, h = probe(path)
+    s = 1.0 if scale_short == 0 else scale_short / min(w, h)
+    if s > 1.0:
+        return False  # never upscale: it would invent no detail and teach blur as sharp
+    sw, sh = int(w * s) // 2 * 2, int(h * s) // 2 * 2
+    cw, ch = min(cw, sw), min(ch, sh)
+    vf = f"scale={sw}:{sh}:flags=area,format=rgb24,crop={cw}:{ch}:{int((sw - cw) * fx)}:{int((sh - ch) * fy)}"
+    subprocess.run(["ffmpeg", "-nostdin", "-v", "error", "-y", "-i", path, "-vf", vf, "-frames:v", "1", out], check=True)
+    return True
+
+rows = []
+def scene(pkg, path, use, lic=None):
+    lic = lic or licence(pkg, path)
+    if lic == "see copyright":
+        print(f"skipped (no licence stanza names it): {pkg} {path}", file=sys.stderr)
+        return
+    name = re.sub(r"[^A-Za-z0-9]+", "-", os.path.splitext(os.path.relpath(path, f"{src}/{pkg}"))[0].split("/usr/share/")[-1])[-60:].strip("-")
+    w, h = probe(path)
+    if use == "test":
+        # One 256 x 256 crop at 720p scale (or native when smaller): the test clips.
+        plan = [(720 if min(w, h) > 720 else 0, 0.5, 0.5, 256, 256)]
+    elif min(w, h) <= 300:
+        plan = [(0, 0.5, 0.5, 384, 288)]
+    else:
+        # Several scales: 720p (what the models meet in 720p footage), half of that (coarser
+        # detail per pixel) and native (finer, when the photo is larger than 720p).
+        plan = [(720, 0.2, 0.3, 384, 288), (720, 0.8, 0.7, 384, 288), (360, 0.5, 0.5, 384, 288), (0, 0.35, 0.6, 384, 288)]
+    for i, (sc, fx, fy, cw, ch) in enumerate(plan):
+        out = f"{data}/photos/{use}/{pkg}--{name}_{i}.png"
+        if crop(path, out, sc, fx, fy, cw, ch):
+            rows.append((os.path.relpath(out, data), pkg, version(pkg), lic, os.path.relpath(path, f"{src}/{pkg}"), use))
+
+g = lambda pkg, pat: sorted(glob.glob(f"{src}/{pkg}/{pat}", recursive=True))
+for f in g("mate-backgrounds", "usr/share/backgrounds/mate/nature/*.jpg"):
+    scene("mate-backgrounds", f, "train")
+for d in g("plasma-workspace-wallpapers", "usr/share/wallpapers/*/"):
+    imgs = sorted(glob.glob(f"{d}contents/images/*"), key=os.path.getsize)
+    if imgs:
+        scene("plasma-workspace-wallpapers", imgs[-1], "train")
+for pkg in ["lomiri-wallpapers", "lomiri-wallpapers-16.04"]:
+    for f in g(pkg, "usr/share/backgrounds/**/*.*"):
+        if f.lower().endswith((".jpg", ".png")):
+            scene(pkg, f, "train")
+for f in g("extremetuxracer-data", "usr/share/games/etr/terrains/*.png"):
+    scene("extremetuxracer-data", f, "train")
+sk = "public domain / CC0 (skimage/data/README.txt)"
+for n in ["astronaut.png", "chelsea.png", "coffee.png", "rocket.jpg", "motorcycle_left.png", "motorcycle_right.png", "grass.png",
+          "gravel.png", "brick.png", "hubble_deep_field.jpg", "retina.jpg", "ihc.png", "camera.png", "moon.png", "coins.png"]:
+    for f in g("python3-skimage", f"usr/lib/python3/dist-packages/skimage/data/{n}"):
+        scene("python3-skimage", f, "train", sk)
+# Objects: photographic stamps with alpha, copied as they are.
+for f in g("tuxpaint-stamps-default", "usr/share/tuxpaint/stamps/**/*.png"):
+    rel = os.path.relpath(f, f"{src}/tuxpaint-stamps-default/usr/share/tuxpaint/stamps")
+    if re.search(r"(^|/)(cartoon|symbols|space)(/|$)", rel) or "-outline" in rel:
+        continue
+    out = f"{data}/objects/{rel.replace('/', '--')}"
+    if not os.path.exists(out):
+        # Expanded to RGBA (palette stamps carry their transparency in tRNS).
+        subprocess.run(["ffmpeg", "-nostdin", "-v", "error", "-y", "-i", f, "-vf", "format=rgba", "-frames:v", "1", out], check=True)
+    # A cut-out needs transparent pixels (some stamps are opaque photos): keep only those.
+    alpha = subprocess.run(["ffmpeg", "-nostdin", "-v", "error", "-i", out, "-vf", "alphaextract,format=gray", "-f", "rawvideo", "-"],
+                           capture_output=True).stdout
+    if not alpha or min(alpha) == 255:
+        os.remove(out)
+        continue
+    rows.append((os.path.relpath(out, data), "tuxpaint-stamps-default", version("tuxpaint-stamps-default"), licence("tuxpaint-stamps-default", f), rel, "object"))
+for f in g("ukui-wallpapers", "usr/share/backgrounds/*.*"):
+    scene("ukui-wallpapers", f, "test")
+for f in g("lomiri-wallpapers-20.04", "usr/share/backgrounds/**/*.jpg"):
+    scene("lomiri-wallpapers-20.04", f, "test")
+for n in ["china.jpg", "flower.jpg"]:
+    for f in g("python3-sklearn", f"usr/lib/python3/dist-packages/sklearn/datasets/images/{n}"):
+        scene("python3-sklearn", f, "test", "CC-BY-2.0 (sklearn/datasets/images/README.txt)")
+with open(f"{data}/photos/MANIFEST.tsv", "w") as m:
+    m.write("file\tsource_package\tversion\tlicence\toriginal_path\tuse\n")
+    for r in rows:
+        m.write("\t".join(r) + "\n")
+count = lambda u: len({r[4] + r[1] for r in rows if r[5] == u})
+print(f"photos: {count('train')} training photographs ({sum(r[5] == 'train' for r in rows)} crops) from "
+      f"{len({r[1] for r in rows if r[5] == 'train'})} packages, {count('object')} cut-outs, "
+      f"{count('test')} test photographs -> {data}/photos/MANIFEST.tsv", file=sys.stderr)
+PY
+}
+
+# Training shards: windows of N = 7, 9, 11 and 13 through each camera, the same clips, motions,
+# noise and patches for both (the seed depends on N only).
+shards() {
+  for n in 7 9 11 13; do
+    for cam in phase_coded conventional; do
+      d="$DATA/shards/$cam-n$n"
+      [ -f "$d/manifest.json" ] && [ "${REDO:-0}" = 0 ] && continue
+      "$PIPELINE" run pipelines/train-data.toml -o "$d" --set seed=$((11 + n)) --set transforms.blur.window=$n \
+        --set sources.stills.frames=$((8 * n)) --set transforms.blur.camera.type=$cam --set sinks.shards.prefix=n$n \
+        --set "sources.stills.paths=[\"$DATA/photos/train\"]" --set "sources.stills.motion.object_paths=[\"$DATA/objects\"]"
+    done
   done
-done
+}
+
+# Test clips: each test photograph moved by one named motion at a time, windows of 13 frames of
+# one motion each (so the N = 7 to 13 windows that `pipeline eval` centres in them see the same
+# motion, shorter), written as lossless video.
+test_clips() {
+  for kind in shake objects still pan rotate zoom; do
+    d="$DATA/test/$kind"
+    [ -n "$(ls "$d"/*.mkv 2>/dev/null)" ] && continue
+    rm -rf "$d.frames"
+    w=""; for k in shake objects still pan rotate zoom; do w="$w${w:+, }$k = $([ $k = "$kind" ] && echo 1.0 || echo 0.0)"; done
+    "$PIPELINE" run pipelines/test-clips.toml -o "$d.frames" --set "sources.stills.paths=[\"$DATA/photos/test\"]" \
+      --set "sources.stills.motion.weights={ $w }" --set seed=$((100 + ${#kind}))
+    mkdir -p "$d"
+    for clip in "$d.frames"/*/; do
+      ffmpeg -nostdin -v error -y -framerate 240 -i "$clip/sharp/%06d.png" -c:v ffv1 "$d/$(basename "$clip").mkv"
+    done
+    rm -rf "$d.frames"
+  done
+}
+
+case $STEP in
+  photos) photos ;;
+  shards) shards ;;
+  test) test_clips ;;
+  all) photos; shards; test_clips ;;
+esac

@@ -13,6 +13,9 @@ pub struct Frame {
     pub height: usize,
     pub data: Arc<FrameData>,
     pub curve: Option<Curve>,
+    /// What moved in this frame's window, as JSON for `key.json` (the `stills` source's
+    /// per-window motion), or `None` (video).
+    pub motion: Option<Arc<str>>,
 }
 
 /// Columns to read from a row: a contiguous run from `start`, explicit indices, or a run from
@@ -39,7 +42,7 @@ fn lut16(curve: Curve) -> &'static [f32; 65536] {
 
 impl Frame {
     pub fn new(width: usize, height: usize, data: FrameData) -> Frame {
-        Frame { width, height, data: Arc::new(data), curve: None }
+        Frame { width, height, data: Arc::new(data), curve: None, motion: None }
     }
 
     /// Linear light of channel `c`, row `y`, at `cols`, into `out` (its length is the count).
@@ -287,6 +290,8 @@ pub struct Sample {
     pub frame_height: usize,
     /// True when the pairs were cut before blurring (patch mode).
     pub cropped: bool,
+    /// The middle frame's motion label ([`Frame::motion`]).
+    pub motion: Option<Arc<str>>,
     pub pairs: Vec<Pair>,
 }
 

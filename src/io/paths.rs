@@ -58,7 +58,8 @@ pub fn not_plain(name: &str) -> Option<&'static str> {
 /// # Errors
 /// [`crate::Error::Untrusted`] naming `file` (where the name was read), `field` and the name.
 pub fn inside(dir: &Path, name: &str, file: &Path, field: &str) -> Result<PathBuf, crate::Error> {
-    let refuse = |why: &'static str| crate::Error::Untrusted { file: file.to_path_buf(), field: field.to_string(), name: name.to_string(), why };
+    let refuse =
+        |why: &'static str| crate::Error::Untrusted { file: file.to_path_buf(), field: field.to_string(), name: name.to_string(), why };
     if let Some(why) = not_plain(name) {
         return Err(refuse(why));
     }

@@ -2,6 +2,9 @@
 
 use std::io::Write;
 
+/// The largest image (pixels) read: 16384 x 16384, a 16K frame (3 GiB as 32-bit float RGB).
+pub const MAX_PIXELS: u64 = 16384 * 16384;
+
 /// Writes interleaved 8-bit RGB.
 pub fn write_rgb8(w: &mut dyn Write, width: usize, height: usize, rgb: &[u8]) -> std::io::Result<()> {
     assert_eq!(rgb.len(), width * height * 3);
@@ -14,24 +17,35 @@ pub fn write_rgb8(w: &mut dyn Write, width: usize, height: usize, rgb: &[u8]) ->
     wr.finish().map_err(std::io::Error::other)
 }
 
-/// Reads a PNG into interleaved 8-bit RGB: (width, height, data). Grey and alpha are converted;
-/// 16-bit samples are rounded to 8 bits.
+/// Reads a PNG into interleaved 8-bit RGB: (width, height, data). Grey is converted, alpha
+/// dropped; 16-bit samples are rounded to 8 bits.
 pub fn read_rgb8(bytes: &[u8]) -> Result<(usize, usize, Vec<u8>), String> {
+    let (w, h, rgba) = read_rgba8(bytes)?;
+    Ok((w, h, rgba.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect()))
+}
+
+/// Reads a PNG into interleaved 8-bit RGBA (opaque where the file has no alpha). Files that
+/// declare more than [`MAX_PIXELS`] pixels are refused before anything is allocated for them.
+pub fn read_rgba8(bytes: &[u8]) -> Result<(usize, usize, Vec<u8>), String> {
     let mut dec = png::Decoder::new(std::io::Cursor::new(bytes));
     dec.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
     let mut r = dec.read_info().map_err(|e| e.to_string())?;
+    let (dw, dh) = (r.info().width as u64, r.info().height as u64);
+    if dw * dh > MAX_PIXELS {
+        return Err(format!("declares {dw}x{dh} pixels, more than the {MAX_PIXELS} this tool reads"));
+    }
     let mut buf = vec![0; r.output_buffer_size().ok_or("png too large")?];
     let info = r.next_frame(&mut buf).map_err(|e| e.to_string())?;
     let (w, h) = (info.width as usize, info.height as usize);
     let px = &buf[..info.buffer_size()];
-    let rgb = match info.color_type {
-        png::ColorType::Rgb => px.to_vec(),
-        png::ColorType::Rgba => px.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect(),
-        png::ColorType::Grayscale => px.iter().flat_map(|&g| [g, g, g]).collect(),
-        png::ColorType::GrayscaleAlpha => px.chunks_exact(2).flat_map(|p| [p[0], p[0], p[0]]).collect(),
+    let rgba: Vec<u8> = match info.color_type {
+        png::ColorType::Rgb => px.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect(),
+        png::ColorType::Rgba => px.to_vec(),
+        png::ColorType::Grayscale => px.iter().flat_map(|&g| [g, g, g, 255]).collect(),
+        png::ColorType::GrayscaleAlpha => px.chunks_exact(2).flat_map(|p| [p[0], p[0], p[0], p[1]]).collect(),
         png::ColorType::Indexed => return Err("indexed png not expanded".into()),
     };
-    Ok((w, h, rgb))
+    Ok((w, h, rgba))
 }
 
 /// sRGB encoding of linear light in [0, 1].

@@ -226,7 +226,8 @@ mod tests {
             burn::tensor::TensorData::new((0..3 * 32 * 32).map(|i| (i % 97) as f32 / 97.0).collect::<Vec<_>>(), [1, 3, 32, 32]),
             &dev,
         );
-        let (ya, yb) = (a.forward(x.clone()).into_data().to_vec::<f32>().unwrap(), b.forward(x).into_data().to_vec::<f32>().unwrap());
+        let (ya, yb) =
+            (a.forward(x.clone()).into_data().try_to_vec::<f32>().unwrap(), b.forward(x).into_data().try_to_vec::<f32>().unwrap());
         assert_eq!(ya, yb);
         assert!(from_torch(crate::model::infer::DEFAULT_MODEL, "burn").unwrap().is_none(), "burn names pass through");
     }

@@ -180,6 +180,7 @@ impl CodedBlur {
             frame_width: w,
             frame_height: h,
             cropped: self.crop_first.is_some(),
+            motion: mid.motion.clone(),
             pairs,
         };
         Counters::add(&self.counters.windows, 1);

@@ -110,6 +110,8 @@ struct SampleMeta<'a> {
     sigma: Option<f64>,
     frame_size: [usize; 2],
     patch: Option<PatchMeta>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    motion: Option<serde_json::Value>,
 }
 
 #[derive(Serialize)]
@@ -140,6 +142,7 @@ pub fn meta_json(s: &Sample, p: &Pair) -> Vec<u8> {
         sigma: s.sigma,
         frame_size: [s.frame_width, s.frame_height],
         patch: p.patch.map(|index| PatchMeta { index, x: p.x, y: p.y, w: p.w, h: p.h }),
+        motion: s.motion.as_deref().and_then(|m| serde_json::from_str(m).ok()),
     };
     serde_json::to_vec(&m).expect("json")
 }
@@ -284,8 +287,8 @@ impl Manifest {
         let p = dir.join(name);
         match std::fs::read(&p) {
             Ok(b) => {
-                let m: Manifest =
-                    serde_json::from_slice(&b).map_err(|e| crate::Error::Invalid(format!("{}: not a pipeline manifest ({e})", p.display())))?;
+                let m: Manifest = serde_json::from_slice(&b)
+                    .map_err(|e| crate::Error::Invalid(format!("{}: not a pipeline manifest ({e})", p.display())))?;
                 // Shard names are opened, sized and removed in `dir`: each must be a plain name
                 // there (a tampered manifest must not reach other files).
                 for (i, input) in m.inputs.iter().enumerate() {

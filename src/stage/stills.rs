@@ -1,7 +1,9 @@
-//! `stills`: high-frame-rate clips rendered from still photographs (or procedural textures) with
-//! seeded camera shake, a steady pan and independently moving layers.
+//! `stills`: high-frame-rate clips rendered from still photographs (or procedural textures):
+//! with a `[motion]` table, a motion drawn per window (shake, pan, objects, rotate, zoom or
+//! still; [`super::motion`]); without one, the older per-clip shake, pan and moving layers.
 
 use super::input::emit_clip;
+use super::motion::{MotionConfig, Sprite, WindowMotion};
 use super::{BuildContext, Built, Counters, Emit, InputList, Needs, Source, StageConfig};
 use crate::frame::{Frame, FrameData, Input, Item};
 use crate::optics::config::Checker;
@@ -35,6 +37,9 @@ pub struct StillsConfig {
     /// Largest steady camera (pan) speed, pixels per frame: each clip draws a speed uniformly
     /// from [0, this] in a random direction, on top of the shake (0: shake only).
     pub pan_px: f64,
+    /// A motion drawn per window ([`MotionConfig`]); when present, `shake_px`, `layers`,
+    /// `layer_speed_px` and `pan_px` are not used.
+    pub motion: Option<MotionConfig>,
 }
 
 impl Default for StillsConfig {
@@ -49,6 +54,7 @@ impl Default for StillsConfig {
             layers: 3,
             layer_speed_px: 2.0,
             pan_px: 0.0,
+            motion: None,
         }
     }
 }
@@ -63,6 +69,9 @@ impl StageConfig for StillsConfig {
         c.range_usize("layers", self.layers, 0, 64);
         c.range("layer_speed_px", self.layer_speed_px, 0.0, 100.0);
         c.range("pan_px", self.pan_px, 0.0, 100.0);
+        if let Some(m) = &self.motion {
+            m.validate(&mut c, "motion");
+        }
         if self.paths.is_empty() {
             c.range_usize("clips", self.clips, 1, 100_000);
             for (i, v) in self.size.iter().enumerate() {
@@ -84,12 +93,19 @@ impl StageConfig for StillsConfig {
             inputs: ctx.inputs.to_vec(),
             needs: ctx.needs,
             counters: ctx.counters.clone(),
+            sprites: match &self.motion {
+                // Reduced to the largest object the frame can hold, so sampling never skips pixels.
+                Some(m) if !m.object_paths.is_empty() => {
+                    load_sprites(&m.object_paths, (m.object_size[1] * self.size[0].max(self.size[1]).max(64) as f64).ceil() as usize)?
+                }
+                _ => Vec::new(),
+            },
         })))
     }
 }
 
 /// Bilinear sample of a planar image with mirrored borders.
-fn sample(img: &[f32], w: usize, h: usize, x: f64, y: f64) -> f32 {
+pub(crate) fn sample(img: &[f32], w: usize, h: usize, x: f64, y: f64) -> f32 {
     use crate::optics::fft::reflect;
     let (fx, fy) = (x.floor(), y.floor());
     let (ax, ay) = ((x - fx) as f32, (y - fy) as f32);
@@ -173,6 +189,8 @@ pub struct Stills {
     pub inputs: Vec<(Arc<Input>, Option<PathBuf>)>,
     pub needs: Needs,
     pub counters: Arc<Counters>,
+    /// The cut-outs of `motion.object_paths`.
+    pub sprites: Vec<Arc<Sprite>>,
 }
 
 impl Stills {
@@ -183,6 +201,9 @@ impl Stills {
         let w = if self.cfg.size[0] == 0 { iw } else { self.cfg.size[0].min(iw) };
         let h = if self.cfg.size[1] == 0 { ih } else { self.cfg.size[1].min(ih) };
         let off = ((iw - w) as f64 / 2.0, (ih - h) as f64 / 2.0);
+        if let Some(m) = &self.cfg.motion {
+            return self.render_windows(m, input, img, iw, ih, w, h, off);
+        }
         let mut rng = Rng::new(hash(&[self.seed, input.id, hash_str("stills")]));
         let layers: Vec<Layer> = (0..self.cfg.layers)
             .map(|_| {
@@ -241,6 +262,61 @@ impl Stills {
     }
 }
 
+impl Stills {
+    /// Frames in windows of the blur's length, each window with a motion of its own.
+    #[allow(clippy::too_many_arguments)]
+    fn render_windows(
+        &self,
+        m: &MotionConfig,
+        input: &Input,
+        img: &[Vec<f32>; 3],
+        iw: usize,
+        ih: usize,
+        w: usize,
+        h: usize,
+        off: (f64, f64),
+    ) -> Vec<Frame> {
+        let n = if m.window > 0 { m.window } else { (self.needs.frames as usize).max(1) };
+        let mut frames = Vec::with_capacity(self.cfg.frames as usize);
+        let mut k = 0u64;
+        while (frames.len() as u64) < self.cfg.frames {
+            let mut rng = Rng::new(hash(&[self.seed, input.id, k, hash_str("motion")]));
+            let wm = WindowMotion::draw(m, n, w, h, img, iw, ih, &self.sprites, &mut rng);
+            let label: Arc<str> = wm.label().into();
+            for j in 0..n.min((self.cfg.frames - frames.len() as u64) as usize) {
+                let mut f = Frame::new(w, h, FrameData::Planar(wm.render(j, img, iw, ih, w, h, off)));
+                f.motion = Some(label.clone());
+                frames.push(f);
+            }
+            k += 1;
+        }
+        frames
+    }
+}
+
+/// Reads the cut-outs of `motion.object_paths` (PNG with alpha), each reduced so its longer side
+/// is at most `max_side`.
+///
+/// # Errors
+/// A file that is not a readable PNG, or one without any transparent pixel (not a cut-out).
+pub fn load_sprites(paths: &[String], max_side: usize) -> crate::Result<Vec<Arc<Sprite>>> {
+    let files = crate::io::paths::expand_paths(paths, &["png"])?;
+    let mut out = Vec::with_capacity(files.len());
+    for f in files {
+        let bytes = std::fs::read(&f).map_err(|e| crate::Error::Io { path: f.clone(), cause: e })?;
+        let (w, h, rgba) =
+            crate::io::png::read_rgba8(&bytes).map_err(|e| crate::Error::Invalid(format!("{}: not a readable PNG ({e})", f.display())))?;
+        if !rgba.chunks_exact(4).any(|p| p[3] < 255) {
+            return Err(crate::Error::Invalid(format!(
+                "{}: no transparent pixel, so not a cut-out (motion.object_paths wants PNGs with alpha)",
+                f.display()
+            )));
+        }
+        out.push(Arc::new(Sprite::from_rgba8(w, h, &rgba, max_side)));
+    }
+    Ok(out)
+}
+
 impl Source for Stills {
     fn run(&mut self, out: &mut Emit) -> crate::Result<()> {
         for (input, path) in &self.inputs {
@@ -280,6 +356,7 @@ mod tests {
             inputs: vec![],
             needs: Needs::default(),
             counters: Arc::default(),
+            sprites: Vec::new(),
         };
         let input = Input { index: 0, id: 0, path: "procedural:0".into(), key: "procedural_000000000000".into() };
         let img = (128, 112, procedural_texture(128, 112, 1));

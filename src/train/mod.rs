@@ -382,8 +382,8 @@ impl Trainer {
         }
         if opts.resume {
             let lp = dir.join("latest.json");
-            let (latest, mpath, op) = Latest::read(&dir)?
-                .ok_or_else(|| Error::Io { path: lp, cause: std::io::Error::from(std::io::ErrorKind::NotFound) })?;
+            let (latest, mpath, op) =
+                Latest::read(&dir)?.ok_or_else(|| Error::Io { path: lp, cause: std::io::Error::from(std::io::ErrorKind::NotFound) })?;
             let (net, _) = load_model(&mpath, &device)?;
             let bytes = std::fs::read(&mpath).map_err(|e| Error::Io { path: mpath.clone(), cause: e })?;
             let ids: Vec<u64> = read_meta(&bytes)

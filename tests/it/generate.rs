@@ -320,3 +320,49 @@ fn gopro_and_basicsr_layouts_split_by_video_and_pair_by_name() {
     }
     assert_eq!(total, 4 * 2);
 }
+
+/// The `stills` source with a `[motion]` table: every sample's key.json names the window's
+/// motion and its extent, within the configured range (scaled to the window's length).
+#[test]
+fn stills_motion_is_drawn_per_window_and_recorded_in_key_json() {
+    let d = scratch("stills_motion");
+    let o = run(&[
+        "run",
+        concat!(env!("CARGO_MANIFEST_DIR"), "/pipelines/train-data.toml"),
+        "-o",
+        d.to_str().unwrap(),
+        "--progress",
+        "never",
+        "--set",
+        "sources.stills.paths=[]",
+        "--set",
+        "sources.stills.clips=3",
+        "--set",
+        "sources.stills.size=[96, 80]",
+        "--set",
+        "sources.stills.frames=63",
+        "--set",
+        "sources.stills.motion.object_paths=[]",
+        "--set",
+        "transforms.blur.window=7",
+        "--set",
+        "transforms.patches.size=32",
+        "--set",
+        "transforms.patches.per_window=1",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let mut kinds = std::collections::BTreeSet::new();
+    let members = shard_members(&d);
+    let metas: Vec<serde_json::Value> =
+        members.iter().filter(|(n, _)| n.ends_with(".json")).map(|(_, b)| serde_json::from_slice(b).unwrap()).collect();
+    assert_eq!(metas.len(), 3 * 9);
+    for m in &metas {
+        let kind = m["motion"]["kind"].as_str().unwrap_or_else(|| panic!("no motion in {m}")).to_string();
+        let e = m["motion"]["extent_px"].as_f64().unwrap();
+        // 0 to 40 px over 9 frames is 0 to 30 px over 7.
+        assert!((0.0..=30.0).contains(&e), "{kind}: extent {e}");
+        assert_eq!(kind == "still", e == 0.0, "{m}");
+        kinds.insert(kind);
+    }
+    assert!(kinds.len() >= 4, "27 windows drew only {kinds:?}");
+}

@@ -118,7 +118,10 @@ fn a_latest_json_naming_files_outside_its_folder_is_refused_by_every_command() {
     let out_png = root.join("o.png").display().to_string();
     let commands: Vec<(&str, Vec<&str>)> = vec![
         ("train --resume", vec!["train", "--config", cfg, "--progress", "never", "--resume", "--set", "optim.steps=3"]),
-        ("train init", vec!["train", "--config", cfg, "--progress", "never", "--set", &init, "--set", "optim.steps=4", "--set", &other_dir]),
+        (
+            "train init",
+            vec!["train", "--config", cfg, "--progress", "never", "--set", &init, "--set", "optim.steps=4", "--set", &other_dir],
+        ),
         ("deblur", vec!["deblur", img.to_str().unwrap(), "-o", &out_png, "--model", rd]),
         ("export", vec!["export", rd, "-o", ex.to_str().unwrap()]),
     ];
