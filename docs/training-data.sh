@@ -182,8 +182,10 @@ test_clips() {
     "$PIPELINE" run pipelines/test-clips.toml -o "$d.frames" --set "sources.stills.paths=[\"$DATA/photos/test\"]" \
       --set "sources.stills.motion.weights={ $w }" --set seed=$((100 + ${#kind}))
     mkdir -p "$d"
-    for clip in "$d.frames"/*/; do
-      ffmpeg -nostdin -v error -y -framerate 240 -i "$clip/sharp/%06d.png" -c:v ffv1 "$d/$(basename "$clip").mkv"
+    for sharp in "$d.frames"/*/sharp; do
+      clip=$(basename "$(dirname "$sharp")")
+      ffmpeg -nostdin -v error -y -framerate 240 -i "$sharp/%06d.png" -c:v ffv1 "$d/$clip.mkv"
+      cp "$(dirname "$sharp")/motion.jsonl" "$d/$clip.motion.jsonl"   # the true motion, for eval's Wiener bound
     done
     rm -rf "$d.frames"
   done

@@ -1,7 +1,8 @@
 //! Classical reconstructions for the cameras the paper compares against: the fluttered shutter
 //! by least squares along a known motion (Raskar et al. 2006), the parabolic-motion camera by
 //! Lucy-Richardson deconvolution with its single kernel (Levin et al. 2008). Both work in linear
-//! light.
+//! light. And the bound `pipeline eval` sets beside the networks: the linear minimum-mean-square-
+//! error (Wiener) reconstruction that is told the true kernel ([`wiener_known_kernel`]).
 
 use crate::optics::fft::{fast_size, reflect, FftConv};
 use crate::scene::sub_time;
@@ -177,6 +178,63 @@ pub fn lucy_richardson(img: &[f32], w: usize, h: usize, kernel: &[f32], iters: u
     (0..h).flat_map(|y| u[(y + m) * wp + m..(y + m) * wp + m + w].to_vec()).collect()
 }
 
+/// What the linear minimum-mean-square-error (Wiener) reconstruction gets back of an `h x w`
+/// plane when it is told the true `kernel` (centred odd square), the noise variance and the
+/// sharp plane's power spectrum averaged over rings of equal spatial frequency: the best any
+/// linear, shift-invariant reconstruction can do, up to that averaging. The capture is simulated
+/// here on a mirror-padded canvas, circularly, with white noise of `noise_var` (seeded by `key`),
+/// so the model is exact at the borders (a Wiener filter applied to a crop of a real capture
+/// would amplify the crop's edges near the kernel's zeros). Returns (capture, reconstruction).
+pub fn wiener_bound(sharp: &[f32], w: usize, h: usize, kernel: &[f32], noise_var: f64, key: u64) -> (Vec<f32>, Vec<f32>) {
+    let kn = (kernel.len() as f64).sqrt().round() as usize;
+    let m = kn / 2 + 2;
+    let (hp, wp) = (fast_size(h + 2 * m), fast_size(w + 2 * m));
+    let mut fft = FftConv::new(hp, wp);
+    let k = fft.kernel_spectrum(kernel);
+    let mut canvas = vec![0.0f32; hp * wp];
+    for y in 0..hp {
+        for x in 0..wp {
+            canvas[y * wp + x] = sharp[reflect(y as isize - m as isize, h) * w + reflect(x as isize - m as isize, w)];
+        }
+    }
+    let ones = vec![Complex32::new(1.0, 0.0); fft.spectrum_len()];
+    let mut xs = fft.zero_spectrum();
+    fft.forward_mul(&canvas, &ones, &mut xs);
+    // The capture: blurred, plus white noise.
+    let mut ys: Vec<Complex32> = xs.iter().zip(&k).map(|(x, k)| x * k).collect();
+    let mut y = vec![0.0f32; hp * wp];
+    fft.inverse(&mut ys, &mut y);
+    let sd = noise_var.sqrt();
+    for (i, v) in y.iter_mut().enumerate() {
+        *v += (sd * crate::rng::normal(crate::rng::hash(&[key, i as u64]))) as f32;
+    }
+    let crop = |c: &[f32]| -> Vec<f32> { (0..h).flat_map(|r| c[(r + m) * wp + m..(r + m) * wp + m + w].to_vec()).collect() };
+    let capture = crop(&y);
+    let mut ys = fft.zero_spectrum();
+    fft.forward_mul(&y, &ones, &mut ys);
+    // Ring-averaged |X|^2 (transposed layout: column fx of hp values fy).
+    const BINS: usize = 96;
+    let ring = |i: usize| -> usize {
+        let (fx, fy) = (i / hp, i % hp);
+        let (u, v) = (fx as f64 / wp as f64, fy.min(hp - fy) as f64 / hp as f64);
+        (((u * u + v * v).sqrt() / 0.7072) * BINS as f64).min(BINS as f64 - 1.0) as usize
+    };
+    let (mut pow, mut cnt) = (vec![0.0f64; BINS], vec![0usize; BINS]);
+    for (i, x) in xs.iter().enumerate() {
+        pow[ring(i)] += x.norm_sqr() as f64;
+        cnt[ring(i)] += 1;
+    }
+    // The unnormalised DFT of white noise has power hp * wp * variance at every frequency.
+    let n2 = (hp * wp) as f64 * noise_var;
+    for (i, yv) in ys.iter_mut().enumerate() {
+        let s = pow[ring(i)] / cnt[ring(i)].max(1) as f64;
+        *yv *= k[i].conj() * (s / (k[i].norm_sqr() as f64 * s + n2).max(1e-30)) as f32;
+    }
+    let mut out = vec![0.0f32; hp * wp];
+    fft.inverse(&mut ys, &mut out);
+    (capture, crop(&out))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -255,5 +313,37 @@ mod tests {
         delta[4] = 1.0;
         let same = lucy_richardson(&img, w, h, &delta, 5);
         assert!(same.iter().zip(&img).all(|(a, b)| (a - b).abs() < 1e-4));
+    }
+
+    #[test]
+    fn wiener_with_the_true_kernel_undoes_a_blur_far_better_than_doing_nothing() {
+        let (w, h) = (96, 80);
+        let mut rng = crate::rng::Rng::new(4);
+        // A photograph-like texture: waves in every direction, amplitude falling as 1 / frequency
+        // (the isotropic spectrum the ring-averaged prior assumes).
+        let waves: Vec<(f64, f64, f64, f64)> = (0..300)
+            .map(|_| {
+                let (f, a) = (rng.range(0.05, 2.5), rng.range(0.0, std::f64::consts::TAU));
+                (f * a.cos(), f * a.sin(), rng.range(0.0, 6.3), 0.01 / f)
+            })
+            .collect();
+        let sharp: Vec<f32> = (0..w * h)
+            .map(|i| {
+                (0.5 + waves.iter().map(|(a, b, c, amp)| amp * (a * (i % w) as f64 + b * (i / w) as f64 + c).sin()).sum::<f64>()) as f32
+            })
+            .collect();
+        // A 9-pixel horizontal smear, centred.
+        let kn = 11;
+        let mut kernel = vec![0.0f32; kn * kn];
+        (1..10).for_each(|x| kernel[5 * kn + x] = 1.0 / 9.0);
+        let err = |a: &[f32]| (a.iter().zip(&sharp).map(|(x, y)| ((x - y) as f64).powi(2)).sum::<f64>() / a.len() as f64).sqrt();
+        let (capture, rec) = wiener_bound(&sharp, w, h, &kernel, 0.002f64.powi(2), 1);
+        // The capture is the blur: the direct convolution agrees inside the borders.
+        let direct = convolve_direct(&sharp, h, w, &kernel);
+        assert!((capture[40 * w + 40] - direct[40 * w + 40]).abs() < 0.01);
+        assert!(err(&rec) < 0.6 * err(&capture), "Wiener {} vs blurred {}", err(&rec), err(&capture));
+        // With far more noise, it gets back less, but never does worse than the capture.
+        let (capture, noisy) = wiener_bound(&sharp, w, h, &kernel, 0.05f64.powi(2), 1);
+        assert!(err(&noisy) > err(&rec) && err(&noisy) < err(&capture), "{} vs {}", err(&noisy), err(&capture));
     }
 }

@@ -148,6 +148,13 @@ pub struct Record {
     pub sigma: f64,
     pub blurred: Quality,
     pub deblurred: Quality,
+    /// The motion of the window, where the clip's `.motion.jsonl` says it.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub motion: Option<String>,
+    /// The Wiener reconstruction told the true kernel ([`crate::recon::wiener_bound`]), for
+    /// windows moved as a whole by translation with a known path.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub bound: Option<Quality>,
     /// The side-by-side PNG of this record, if one was written.
     pub example: Option<String>,
 }
@@ -164,6 +171,9 @@ pub struct Cell {
     pub count: usize,
     pub blurred: Quality,
     pub deblurred: Quality,
+    /// The mean Wiener bound over the records that have one, and their count.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub bound: Option<(Quality, usize)>,
 }
 
 /// `eval.json`.
@@ -184,6 +194,41 @@ pub struct EvalReport {
     /// Per video and N, the mean over all sigmas: which footage carries the averages.
     pub per_video: Vec<Cell>,
     pub records: Vec<Record>,
+    /// Another model's Table 1 on the same clips (`--versus`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub versus: Option<Versus>,
+}
+
+/// Another eval's Table 1, to compare outputs with (`--versus`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Versus {
+    pub file: String,
+    pub model: String,
+    pub camera: String,
+    /// Per N: the other model's mean output PSNR (RGB).
+    pub psnr_rgb: Vec<(usize, f64)>,
+}
+
+impl Versus {
+    /// # Errors
+    /// A file that cannot be read or is not an eval.json (a usage error, named).
+    pub fn read(p: &Path) -> Result<Versus> {
+        let bad = |why: String| Error::Usage(format!("--versus {}: {why}", p.display()));
+        let bytes = std::fs::read(p).map_err(|e| bad(e.to_string()))?;
+        let v: serde_json::Value = serde_json::from_slice(&bytes).map_err(|e| bad(format!("not JSON ({e})")))?;
+        let table = v["table"].as_array().ok_or_else(|| bad("no `table`: not an eval.json of `pipeline eval`".into()))?;
+        let psnr_rgb = table
+            .iter()
+            .map(|c| Some((c["window"].as_u64()? as usize, c["deblurred"]["psnr_rgb"].as_f64()?)))
+            .collect::<Option<Vec<_>>>()
+            .ok_or_else(|| bad("a `table` row without window or deblurred.psnr_rgb".into()))?;
+        Ok(Versus {
+            file: p.display().to_string(),
+            model: v["model"].as_str().unwrap_or("?").into(),
+            camera: v["camera"].as_str().unwrap_or("?").into(),
+            psnr_rgb,
+        })
+    }
 }
 
 /// Layout of the side-by-side PNGs: a label bar of `LABEL_H` pixels on top, then the blurred,
@@ -211,6 +256,10 @@ fn cell(records: &[Record], video: Option<&str>, window: usize, sigma: Option<f6
         count: sel.len(),
         blurred: mean_quality(&sel.iter().map(|r| &r.blurred).collect::<Vec<_>>()),
         deblurred: mean_quality(&sel.iter().map(|r| &r.deblurred).collect::<Vec<_>>()),
+        bound: {
+            let b: Vec<&Quality> = sel.iter().filter_map(|r| r.bound.as_ref()).collect();
+            (!b.is_empty()).then(|| (mean_quality(&b), b.len()))
+        },
     }
 }
 
@@ -299,6 +348,7 @@ pub fn run(
             return Err(Error::Invalid(format!("{}: {w}x{h} is too small to score (SSIM needs 11x11)", path.display())));
         }
         let video = path.display().to_string();
+        let log = crate::imaging::truth::MotionLog::read(path)?;
         let centres = (0..e.windows_per_video as u64).map(|k| half + k * spacing).take_while(|&c| c + half < frames.len() as u64);
         for c in centres {
             let mid = &frames[c as usize];
@@ -307,10 +357,22 @@ pub fn run(
                 let start = (c - (n / 2) as u64) as usize;
                 let blur = blurrers[ni].blur_region(&frames[start..start + n], rx as isize, ry as isize, rw, rh);
                 let key = hash(&[f.seed, vi as u64, first + c, n as u64, hash_str("eval-noise")]);
+                let motion = log.as_ref().and_then(|l| l.kind(first + c)).map(str::to_string);
+                // The window's true kernel, where its motion is a known translation of the frame.
+                let truth = log.as_ref().and_then(|l| l.shifts(first + start as u64, n, first + c)).map(|s| {
+                    let (k, side) = crate::imaging::truth::window_kernel(&mut blurrers[ni], &s);
+                    (k, side, mid.linear_crop(rx, ry, rw, rh))
+                });
                 for &sigma in &e.sigmas {
                     let blurred = read_out(&blur, (rx, ry, rw, rh), &enc, sigma, throughput, key);
                     let deblurred = run_frame(net, &blurred, rw, rh, tiling);
                     let (qb, qd) = (quality(&blurred, &sharp, rw, rh), quality(&deblurred, &sharp, rw, rh));
+                    let bound = truth.as_ref().map(|(k, _, lin)| {
+                        let var = crate::imaging::truth::linear_noise_var(lin, e.curve, crate::imaging::sensor_sigma(sigma, throughput));
+                        let rec: [Vec<f32>; 3] =
+                            std::array::from_fn(|ch| crate::recon::wiener_bound(&lin[ch], rw, rh, &k[ch], var[ch], key ^ ch as u64).1);
+                        quality(&to_8bit(&rec, rw, rh, e.curve), &sharp, rw, rh)
+                    });
                     let example = (examples_left > 0 && sigma == top_sigma).then(|| {
                         examples_left -= 1;
                         let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
@@ -329,7 +391,17 @@ pub fn run(
                             ],
                         )?;
                     }
-                    records.push(Record { video: video.clone(), frame: first + c, window: n, sigma, blurred: qb, deblurred: qd, example });
+                    records.push(Record {
+                        video: video.clone(),
+                        frame: first + c,
+                        window: n,
+                        sigma,
+                        blurred: qb,
+                        deblurred: qd,
+                        motion: motion.clone(),
+                        bound,
+                        example,
+                    });
                     bar.inc(1);
                     bar.set_message(format!("{} N={n} sigma={sigma}", path.file_name().unwrap_or_default().to_string_lossy()));
                 }
@@ -360,6 +432,7 @@ pub fn run(
         per_sigma,
         per_video,
         records,
+        versus: None,
     };
     let json = serde_json::to_vec_pretty(&report).expect("json");
     write_atomic(&out.join("eval.json"), |w| w.write_all(&json))?;
@@ -376,15 +449,26 @@ fn pair(q: &Quality, y: bool) -> String {
     }
 }
 
-fn rows(cells: &[Cell], with_sigma: bool) -> String {
+fn rows(cells: &[Cell], with_sigma: bool, versus: Option<&Versus>) -> String {
     let with_video = cells.iter().any(|c| c.video.is_some());
+    let with_bound = cells.iter().any(|c| c.bound.is_some());
     let mut s = String::new();
     s.push_str(if with_video { "| video " } else { "" });
     s.push_str(if with_sigma { "| N | sigma " } else { "| N " });
-    s.push_str("| blurred input (RGB) | deblurred (RGB) | gain dB | blurred input (Y) | deblurred (Y) | gain dB | windows |\n");
+    s.push_str("| blurred input (RGB) | deblurred (RGB) | gain dB | blurred input (Y) | deblurred (Y) | gain dB | windows ");
+    if with_bound {
+        s.push_str("| Wiener, true kernel (RGB) | its gain dB | share of it reached ");
+    }
+    if let Some(v) = versus {
+        s.push_str(&format!("| output minus {} output dB ", v.camera));
+    }
+    s.push_str("|\n");
     s.push_str(if with_video { "|---" } else { "" });
     s.push_str(if with_sigma { "|---|---" } else { "|---" });
-    s.push_str("|---|---|---|---|---|---|---|\n");
+    s.push_str("|---|---|---|---|---|---|---");
+    s.push_str(if with_bound { "|---|---|---" } else { "" });
+    s.push_str(if versus.is_some() { "|---" } else { "" });
+    s.push_str("|\n");
     for c in cells {
         if let Some(v) = &c.video {
             s.push_str(&format!("| {} ", Path::new(v).file_name().map_or(v.clone(), |f| f.to_string_lossy().into_owned())));
@@ -394,7 +478,7 @@ fn rows(cells: &[Cell], with_sigma: bool) -> String {
             s.push_str(&format!("| {} ", c.sigma.unwrap_or(f64::NAN)));
         }
         s.push_str(&format!(
-            "| {} | {} | {:+.2} | {} | {} | {:+.2} | {} |\n",
+            "| {} | {} | {:+.2} | {} | {} | {:+.2} | {} ",
             pair(&c.blurred, false),
             pair(&c.deblurred, false),
             c.deblurred.psnr_rgb - c.blurred.psnr_rgb,
@@ -403,6 +487,23 @@ fn rows(cells: &[Cell], with_sigma: bool) -> String {
             c.deblurred.psnr_y - c.blurred.psnr_y,
             c.count
         ));
+        if with_bound {
+            match &c.bound {
+                Some((b, n)) => {
+                    let (gain, got) = (b.psnr_rgb - c.blurred.psnr_rgb, c.deblurred.psnr_rgb - c.blurred.psnr_rgb);
+                    let share = if gain > 0.05 { format!("{:.0}%", 100.0 * got / gain) } else { "-".into() };
+                    s.push_str(&format!("| {} ({n}) | {gain:+.2} | {share} ", pair(b, false)));
+                }
+                None => s.push_str("| - | - | - "),
+            }
+        }
+        if let Some(v) = versus {
+            match v.psnr_rgb.iter().find(|(n, _)| *n == c.window).filter(|_| c.video.is_none() && c.sigma.is_none()) {
+                Some((_, o)) => s.push_str(&format!("| {:+.2} ", c.deblurred.psnr_rgb - o)),
+                None => s.push_str("| "),
+            }
+        }
+        s.push_str("|\n");
     }
     s
 }
@@ -422,11 +523,11 @@ pub fn markdown(r: &EvalReport) -> String {
         r.convention
     );
     s.push_str(&format!("## Table 1 layout: PSNR dB / SSIM, mean over sigma in {{{}}}\n\n", sig.join(", ")));
-    s.push_str(&rows(&r.table, false));
+    s.push_str(&rows(&r.table, false, r.versus.as_ref()));
     s.push_str("\n## Per noise level\n\n");
-    s.push_str(&rows(&r.per_sigma, true));
+    s.push_str(&rows(&r.per_sigma, true, None));
     s.push_str(&format!("\n## Per video: mean over sigma in {{{}}}\n\n", sig.join(", ")));
-    s.push_str(&rows(&r.per_video, false));
+    s.push_str(&rows(&r.per_video, false, None));
     let ex: Vec<&str> = r.records.iter().filter_map(|x| x.example.as_deref()).collect();
     if !ex.is_empty() {
         s.push_str("\n## Examples (blurred | deblurred | sharp)\n\n");
@@ -481,6 +582,10 @@ pub struct EvalArgs {
     /// was trained for.
     #[arg(long, value_enum)]
     pub camera: Option<crate::optics::CameraKind>,
+    /// The eval.json of another model on the same clips (the other camera's, say): eval.md then
+    /// also gives this model's output minus that one's, per N.
+    #[arg(long, value_name = "EVAL_JSON")]
+    pub versus: Option<std::path::PathBuf>,
     #[command(flatten)]
     pub file: super::ConfigArgs,
 }
@@ -490,7 +595,9 @@ pub struct EvalArgs {
 /// # Errors
 /// Whatever the command reports (exit codes in `main.rs`).
 pub fn command(a: EvalArgs) -> anyhow::Result<()> {
-    let EvalArgs { videos, out, model, camera, file } = a;
+    let EvalArgs { videos, out, model, camera, versus, file } = a;
+    // Read first: a missing or foreign file is a usage error before any work.
+    let versus = versus.map(|p| Versus::read(&p)).transpose()?;
     let (table, origin) = file.load(crate::commands::eval::EVAL_TOML, "pipelines/eval.toml")?;
     let mut f = crate::commands::eval::EvalFile::from_table(table, &origin)?;
     if let Some(k) = camera {
@@ -498,7 +605,14 @@ pub fn command(a: EvalArgs) -> anyhow::Result<()> {
     }
     let (net, name) = crate::model::infer::load(model.as_deref())?;
     let bar = file.progress;
-    let r = crate::commands::eval::run(&f, &net, &name, &videos, &out, bar)?;
+    let mut r = crate::commands::eval::run(&f, &net, &name, &videos, &out, bar)?;
+    if let Some(v) = versus {
+        r.versus = Some(v);
+        let md = markdown(&r);
+        write_atomic(&out.join("eval.md"), |w| w.write_all(md.as_bytes()))?;
+        let json = serde_json::to_vec_pretty(&r).expect("json");
+        write_atomic(&out.join("eval.json"), |w| w.write_all(&json))?;
+    }
     println!("{}", crate::commands::eval::markdown(&r));
     eprintln!("{} windows scored in {:.0} s -> {}", r.records.len(), r.seconds, out.join("eval.md").display());
     Ok(())

@@ -214,6 +214,21 @@ impl Sink for Frames {
                 for p in &s.pairs {
                     self.write(&s, p)?;
                 }
+                // The stills source's motion of each window, one JSON line per window, beside the
+                // clip's folders (what `pipeline eval` reads as `{video}.motion.jsonl`).
+                if let (Some(m), Layout::Folders) = (&s.motion, self.layout) {
+                    let path = self.dir.join(&s.input.key).join("motion.jsonl");
+                    let line = format!("{{\"window\":{},\"first_frame\":{},\"motion\":{m}}}\n", s.window, s.first_frame);
+                    let mut f = std::fs::OpenOptions::new()
+                        .create(true)
+                        .append(true)
+                        .open(&path)
+                        .map_err(|e| crate::Error::Io { path: path.clone(), cause: e })?;
+                    std::io::Write::write_all(&mut f, line.as_bytes()).map_err(|e| crate::Error::Io { path: path.clone(), cause: e })?;
+                    if !self.written.contains(&path) {
+                        self.written.push(path);
+                    }
+                }
                 self.pending += s.pairs.len();
                 Counters::add(&self.counters.samples, s.pairs.len() as u64);
             }

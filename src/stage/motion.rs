@@ -412,12 +412,18 @@ impl WindowMotion {
         m
     }
 
-    /// What `key.json` records of the window.
+    /// What `key.json` records of the window; for a motion of the whole frame by translation
+    /// (still, pan, shake) also `shift`, each frame's displacement in pixels, so that a
+    /// reconstruction can be told the true kernel (`pipeline eval`'s Wiener bound).
     pub fn label(&self) -> String {
         let mut v = serde_json::json!({ "kind": self.kind.name(), "extent_px": (self.extent_px * 100.0).round() / 100.0 });
         if let Some(b) = self.background {
             v["objects"] = self.objects.len().into();
             v["background"] = b.name().into();
+        }
+        if matches!(self.kind, MotionKind::Still | MotionKind::Pan | MotionKind::Shake) {
+            let r = |x: f64| (x * 1000.0).round() / 1000.0;
+            v["shift"] = self.poses.iter().map(|p| serde_json::json!([r(p.t.0), r(p.t.1)])).collect::<Vec<_>>().into();
         }
         v.to_string()
     }
