@@ -13,8 +13,12 @@ pub struct TrainArgs {
     #[arg(long = "set", value_name = "KEY=VALUE")]
     pub sets: Vec<String>,
     /// Continue from output.dir/latest.json with the same data order.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "overwrite")]
     pub resume: bool,
+    /// Start afresh in an output.dir that holds a run, deleting its checkpoints and history
+    /// (without it, such a folder is refused).
+    #[arg(long)]
+    pub overwrite: bool,
     /// Progress display on stderr.
     #[arg(long, value_enum, default_value_t = ProgressMode::Auto)]
     pub progress: ProgressMode,
@@ -25,14 +29,14 @@ pub struct TrainArgs {
 /// # Errors
 /// Whatever the command reports (exit codes in `main.rs`).
 pub fn command(a: TrainArgs) -> anyhow::Result<()> {
-    let TrainArgs { config, sets, resume, progress } = a;
+    let TrainArgs { config, sets, resume, overwrite, progress } = a;
     let table = crate::config::load(&config, &sets)?;
     let origin = crate::config::Origin::new(&config.display().to_string(), None, &sets);
     let cfg = match crate::config::deserialize_all::<crate::train::TrainConfig>(&table) {
         (Some(cfg), errs) if errs.is_empty() => cfg,
         (_, errs) => return Err(origin.errors(errs).into()),
     };
-    let r = crate::train::train(&cfg, &crate::train::TrainOptions { resume, progress, stop_after: None })?;
+    let r = crate::train::train(&cfg, &crate::train::TrainOptions { resume, overwrite, progress, stop_after: None })?;
     let last = r.validation.last();
     // After a resume, the time and rate are this run's alone: say which steps they cover.
     let resumed = match r.resumed_from {

@@ -1212,6 +1212,10 @@ mod tests {
             if let Some(db) = db {
                 assert!(rel(&f.gb, &db) < 1e-4, "case {i} bias gradient");
             }
+            // The check catches a wrong gradient: one weight's gradient off by 1e-3 of the largest.
+            let scale = dw.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            f.gw[dw.len() / 2] += 1e-3 * scale;
+            assert!(rel(&f.gw, &dw) > 1e-4, "case {i}: a perturbed weight gradient passes ({})", rel(&f.gw, &dw));
         }
     }
 

@@ -96,7 +96,7 @@ impl TrainerSink {
     pub fn new(cfg: &TrainerSinkConfig, seed: u64) -> Result<TrainerSink> {
         let t = Trainer::new(
             &cfg.to_train_config(seed),
-            &TrainOptions { resume: false, progress: crate::progress::ProgressMode::Never, stop_after: None },
+            &TrainOptions { resume: false, overwrite: false, progress: crate::progress::ProgressMode::Never, stop_after: None },
         )?;
         Ok(TrainerSink {
             trainer: Some(t),

@@ -243,6 +243,8 @@ pub struct Averaged {
 /// Options of one `pipeline train` call.
 pub struct TrainOptions {
     pub resume: bool,
+    /// Start afresh in an output folder that holds a run, removing its checkpoints and history.
+    pub overwrite: bool,
     pub progress: crate::progress::ProgressMode,
     /// Stop after this step (tests of resume); None: run to `optim.steps`.
     pub stop_after: Option<usize>,
@@ -306,6 +308,77 @@ impl Engine {
     }
 }
 
+/// Takes `dir/.train.lock` for the life of the run: a second `pipeline train` into the same
+/// folder is refused rather than left to overwrite the first one's checkpoints.
+///
+/// # Errors
+/// The lock is held by another process (a usage error naming the folder), or cannot be made.
+fn lock_run_folder(dir: &Path) -> Result<std::fs::File> {
+    let lp = dir.join(".train.lock");
+    let f = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&lp)
+        .map_err(|e| Error::Io { path: lp.clone(), cause: e })?;
+    match f.try_lock() {
+        Ok(()) => Ok(f),
+        Err(std::fs::TryLockError::WouldBlock) => Err(Error::Usage(format!(
+            "{}: another `pipeline train` is writing to this folder (it holds {}); wait for it to finish or choose another output.dir",
+            dir.display(),
+            lp.display()
+        ))),
+        Err(std::fs::TryLockError::Error(e)) => Err(Error::Io { path: lp, cause: e }),
+    }
+}
+
+/// The files a training run writes in its folder.
+fn run_files(dir: &Path) -> Vec<PathBuf> {
+    let fixed = ["latest.json", "report.json", "history.csv", "curves.png", "model.safetensors"];
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| {
+            let n = p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            fixed.contains(&n.as_str())
+                || (n.starts_with("model-") && n.ends_with(".safetensors"))
+                || (n.starts_with("optim-") && n.ends_with(".bin"))
+        })
+        .collect();
+    v.sort();
+    v
+}
+
+/// A run that does not resume starts in a folder without one: refused when the folder holds a
+/// run, unless `overwrite`, which removes that run's files first (so no old checkpoint is left
+/// beside the new ones).
+///
+/// # Errors
+/// The folder holds a run and `overwrite` is off (a usage error saying what to do instead).
+fn fresh_run_folder(dir: &Path, overwrite: bool) -> Result<()> {
+    let files = run_files(dir);
+    if files.is_empty() {
+        return Ok(());
+    }
+    if !overwrite {
+        let step = std::fs::read(dir.join("latest.json")).ok().and_then(|b| serde_json::from_slice::<Latest>(&b).ok()).map(|l| l.step);
+        return Err(Error::Usage(format!(
+            "{} holds a training run ({}{} files): add --resume to continue it, train a new model from it with --set init={:?} and a fresh \
+             output.dir, or choose a fresh output.dir (--overwrite deletes that run)",
+            dir.display(),
+            step.map_or(String::new(), |s| format!("step {s}, ")),
+            files.len(),
+            dir.display().to_string()
+        )));
+    }
+    for f in files {
+        std::fs::remove_file(&f).map_err(|e| Error::Io { path: f, cause: e })?;
+    }
+    Ok(())
+}
+
 /// The training state: model, optimizer, schedule, history. Fed batches by [`train`] (from
 /// shards) or by the `trainer` sink (straight from the generator).
 pub struct Trainer {
@@ -325,6 +398,8 @@ pub struct Trainer {
     averaged: Option<Averaged>,
     t0: Instant,
     t_train: Instant,
+    /// The folder's `.train.lock`, held until the run ends.
+    _lock: std::fs::File,
     bar: crate::progress::Bar,
 }
 
@@ -340,6 +415,10 @@ impl Trainer {
         }
         let dir = PathBuf::from(&cfg.output.dir);
         std::fs::create_dir_all(&dir).map_err(|e| Error::Io { path: dir.clone(), cause: e })?;
+        let lock = lock_run_folder(&dir)?;
+        if !opts.resume {
+            fresh_run_folder(&dir, opts.overwrite)?;
+        }
         let fast = cfg.optim.engine == EngineKind::Fast;
         let device = if fast { Device::flex() } else { Device::flex().autodiff() };
         // Initial weights are a function of the config's seed alone.
@@ -384,7 +463,17 @@ impl Trainer {
             let lp = dir.join("latest.json");
             let (latest, mpath, op) =
                 Latest::read(&dir)?.ok_or_else(|| Error::Io { path: lp, cause: std::io::Error::from(std::io::ErrorKind::NotFound) })?;
-            let (net, _) = load_model(&mpath, &device)?;
+            let (net, arch) = load_model(&mpath, &device)?;
+            if arch != cfg.model {
+                return Err(Error::Usage(format!(
+                    "{}: the run being resumed is a {} model and the config asks for {}: --resume continues the same network \
+                     (to start another from it, use --set init={:?} with a fresh output.dir)",
+                    mpath.display(),
+                    arch.name(),
+                    cfg.model.name(),
+                    dir.display().to_string()
+                )));
+            }
             let bytes = std::fs::read(&mpath).map_err(|e| Error::Io { path: mpath.clone(), cause: e })?;
             let ids: Vec<u64> = read_meta(&bytes)
                 .ok()
@@ -435,6 +524,7 @@ impl Trainer {
             averaged: None,
             t0: Instant::now(),
             t_train: Instant::now(),
+            _lock: lock,
             bar,
         })
     }

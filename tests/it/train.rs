@@ -45,7 +45,7 @@ fn config(shards: &Path, out: &Path, extra: &str) -> TrainConfig {
 }
 
 fn opts(stop_after: Option<usize>, resume: bool) -> TrainOptions {
-    TrainOptions { resume, progress: pipeline::progress::ProgressMode::Never, stop_after }
+    TrainOptions { resume, overwrite: false, progress: pipeline::progress::ProgressMode::Never, stop_after }
 }
 
 fn probe(dev: &Device) -> Tensor<4> {
@@ -72,11 +72,14 @@ fn the_fast_path_and_burns_path_give_the_same_20_step_loss_curve() {
     let burn = run(pipeline::train::EngineKind::Burn, "train_engine_burn");
     assert_eq!(fast.loss.len(), 20);
     for (a, b) in fast.loss.iter().zip(&burn.loss) {
-        // Rounding differences (f64 BatchNorm sums here, f32 there) start near 1e-7 and Adam
-        // amplifies them as steps go at this learning rate (3e-3): under 1e-6 for the first 8
-        // steps, under 3e-4 over 20 (model::fast's unit test holds 1e-4 for 20 steps at 1e-3).
+        // Rounding differences (f64 BatchNorm sums here, f32 there; gemm's AVX-512 and AVX2
+        // kernels sum in other orders) start near 1e-7 and Adam amplifies them as steps go at
+        // this learning rate (3e-3): 4.4e-6 by step 7 on an AVX-512 machine, under 1e-6 on AVX2;
+        // under 3e-4 over 20 (model::fast's unit test holds 1e-4 for 20 steps at 1e-3). A wrong
+        // gradient is caught where it is made: model::fast's gradient tests hold 1e-4 of the
+        // largest value, and fail when one gradient is off by 1e-3 of it.
         let rel = (a.loss - b.loss).abs() / b.loss.abs();
-        let bound = if a.step <= 8 { 1e-6 } else { 5e-4 };
+        let bound = if a.step <= 8 { 3e-5 } else { 5e-4 };
         assert!(rel <= bound, "step {}: fast {} burn {} (relative {rel:.1e})", a.step, a.loss, b.loss);
     }
 }
@@ -341,4 +344,49 @@ fn the_cli_summary_of_a_resumed_run_names_the_steps_its_time_covers() {
     let third = run(&["train", "--config", cfg, "--progress", "never", "--resume", "--set", "optim.steps=7"]);
     assert!(third.status.success(), "{}", stderr(&third));
     assert!(stderr(&third).contains("shallow-4: 7 steps (resumed when finished: no steps left; in "), "{}", stderr(&third));
+}
+
+/// A run folder is never silently reused (issue 31): a second `train` without `--resume` is
+/// refused (exit 2, naming --resume, init and --overwrite); `--overwrite` starts afresh without
+/// leaving old checkpoints; a resume that changes the network is refused before anything is
+/// written. (The folder's lock against a second run at once is not tested here.)
+#[test]
+fn a_folder_holding_a_run_is_not_reused_without_resume_or_overwrite() {
+    let shards = tiny_shards("train_reuse_shards");
+    let out = scratch("train_reuse");
+    let cfg_path = out.join("train.toml");
+    let write_cfg = |steps: usize| {
+        std::fs::write(
+            &cfg_path,
+            format!(
+                "seed = 1\n[model]\ntype = \"shallow\"\nwidth = 4\n[data]\nshards = [{:?}]\nval_fraction = 0.25\nshuffle_buffer = 16\n[optim]\nsteps = {steps}\nbatch = 2\n[validate]\nevery = 4\nmax_samples = 4\n[output]\ndir = {:?}\ncheckpoint_every = 2\n",
+                shards.display().to_string(),
+                out.join("run").display().to_string()
+            ),
+        )
+        .unwrap()
+    };
+    write_cfg(4);
+    let cfg = cfg_path.to_str().unwrap();
+    let run_dir = out.join("run");
+    let first = run(&["train", "--config", cfg, "--progress", "never"]);
+    assert!(first.status.success(), "{}", stderr(&first));
+    let before = std::fs::read(run_dir.join("history.csv")).unwrap();
+    let again = run(&["train", "--config", cfg, "--progress", "never", "--set", "optim.steps=2"]);
+    let e = stderr(&again);
+    assert_eq!(again.status.code(), Some(2), "{e}");
+    assert!(e.contains("holds a training run") && e.contains("--resume") && e.contains("init=") && e.contains("--overwrite"), "{e}");
+    assert_eq!(std::fs::read(run_dir.join("history.csv")).unwrap(), before, "the refused run wrote into the folder");
+    // A changed network on --resume: refused before anything is written.
+    let latest = std::fs::read(run_dir.join("latest.json")).unwrap();
+    let changed = run(&["train", "--config", cfg, "--progress", "never", "--resume", "--set", "optim.steps=6", "--set", "model.width=8"]);
+    let e = stderr(&changed);
+    assert_eq!(changed.status.code(), Some(2), "{e}");
+    assert!(e.contains("shallow-4") && e.contains("shallow-8") && e.len() < 1000, "{e}");
+    assert_eq!(std::fs::read(run_dir.join("latest.json")).unwrap(), latest);
+    // --overwrite: a fresh run, and no checkpoint of the old one beside it.
+    let over = run(&["train", "--config", cfg, "--progress", "never", "--overwrite", "--set", "optim.steps=2"]);
+    assert!(over.status.success(), "{}", stderr(&over));
+    let ckpts: Vec<String> = files(&run_dir).into_iter().filter(|f| f.starts_with("model-")).collect();
+    assert_eq!(ckpts, vec!["model-0000002.safetensors"], "{ckpts:?}");
 }
