@@ -359,15 +359,15 @@ pub fn run(
                 let key = hash(&[f.seed, vi as u64, first + c, n as u64, hash_str("eval-noise")]);
                 let motion = log.as_ref().and_then(|l| l.kind(first + c)).map(str::to_string);
                 // The window's true kernel, where its motion is a known translation of the frame.
-                let truth = log.as_ref().and_then(|l| l.shifts(first + start as u64, n, first + c)).map(|s| {
-                    let (k, side) = crate::imaging::truth::window_kernel(&mut blurrers[ni], &s);
-                    (k, side, mid.linear_crop(rx, ry, rw, rh))
-                });
+                let truth = log
+                    .as_ref()
+                    .and_then(|l| l.shifts(first + start as u64, n, first + c))
+                    .map(|s| (crate::imaging::truth::window_kernel(&mut blurrers[ni], &s).0, mid.linear_crop(rx, ry, rw, rh)));
                 for &sigma in &e.sigmas {
                     let blurred = read_out(&blur, (rx, ry, rw, rh), &enc, sigma, throughput, key);
                     let deblurred = run_frame(net, &blurred, rw, rh, tiling);
                     let (qb, qd) = (quality(&blurred, &sharp, rw, rh), quality(&deblurred, &sharp, rw, rh));
-                    let bound = truth.as_ref().map(|(k, _, lin)| {
+                    let bound = truth.as_ref().map(|(k, lin)| {
                         let var = crate::imaging::truth::linear_noise_var(lin, e.curve, crate::imaging::sensor_sigma(sigma, throughput));
                         let rec: [Vec<f32>; 3] =
                             std::array::from_fn(|ch| crate::recon::wiener_bound(&lin[ch], rw, rh, &k[ch], var[ch], key ^ ch as u64).1);

@@ -20,13 +20,32 @@ pub fn write_rgb8(w: &mut dyn Write, width: usize, height: usize, rgb: &[u8]) ->
 /// Reads a PNG into interleaved 8-bit RGB: (width, height, data). Grey is converted, alpha
 /// dropped; 16-bit samples are rounded to 8 bits.
 pub fn read_rgb8(bytes: &[u8]) -> Result<(usize, usize, Vec<u8>), String> {
-    let (w, h, rgba) = read_rgba8(bytes)?;
-    Ok((w, h, rgba.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect()))
+    let (w, h, color, px) = decode(bytes)?;
+    let rgb = match color {
+        png::ColorType::Rgb => px,
+        png::ColorType::Rgba => px.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect(),
+        png::ColorType::Grayscale => px.iter().flat_map(|&g| [g, g, g]).collect(),
+        _ => px.chunks_exact(2).flat_map(|p| [p[0], p[0], p[0]]).collect(),
+    };
+    Ok((w, h, rgb))
 }
 
-/// Reads a PNG into interleaved 8-bit RGBA (opaque where the file has no alpha). Files that
-/// declare more than [`MAX_PIXELS`] pixels are refused before anything is allocated for them.
+/// Reads a PNG into interleaved 8-bit RGBA (opaque where the file has no alpha).
 pub fn read_rgba8(bytes: &[u8]) -> Result<(usize, usize, Vec<u8>), String> {
+    let (w, h, color, px) = decode(bytes)?;
+    let rgba = match color {
+        png::ColorType::Rgb => px.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect(),
+        png::ColorType::Rgba => px,
+        png::ColorType::Grayscale => px.iter().flat_map(|&g| [g, g, g, 255]).collect(),
+        _ => px.chunks_exact(2).flat_map(|p| [p[0], p[0], p[0], p[1]]).collect(),
+    };
+    Ok((w, h, rgba))
+}
+
+/// Decodes a PNG to 8-bit samples of its own colour type (palettes expanded; grey, grey + alpha,
+/// RGB or RGBA). Files that declare more than [`MAX_PIXELS`] pixels are refused before anything
+/// is allocated for them.
+fn decode(bytes: &[u8]) -> Result<(usize, usize, png::ColorType, Vec<u8>), String> {
     let mut dec = png::Decoder::new(std::io::Cursor::new(bytes));
     dec.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
     let mut r = dec.read_info().map_err(|e| e.to_string())?;
@@ -36,16 +55,11 @@ pub fn read_rgba8(bytes: &[u8]) -> Result<(usize, usize, Vec<u8>), String> {
     }
     let mut buf = vec![0; r.output_buffer_size().ok_or("png too large")?];
     let info = r.next_frame(&mut buf).map_err(|e| e.to_string())?;
-    let (w, h) = (info.width as usize, info.height as usize);
-    let px = &buf[..info.buffer_size()];
-    let rgba: Vec<u8> = match info.color_type {
-        png::ColorType::Rgb => px.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect(),
-        png::ColorType::Rgba => px.to_vec(),
-        png::ColorType::Grayscale => px.iter().flat_map(|&g| [g, g, g, 255]).collect(),
-        png::ColorType::GrayscaleAlpha => px.chunks_exact(2).flat_map(|p| [p[0], p[0], p[0], p[1]]).collect(),
-        png::ColorType::Indexed => return Err("indexed png not expanded".into()),
-    };
-    Ok((w, h, rgba))
+    buf.truncate(info.buffer_size());
+    if info.color_type == png::ColorType::Indexed {
+        return Err("indexed png not expanded".into());
+    }
+    Ok((info.width as usize, info.height as usize, info.color_type, buf))
 }
 
 /// sRGB encoding of linear light in [0, 1].

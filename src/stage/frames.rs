@@ -189,17 +189,18 @@ impl Frames {
             if lines.is_empty() {
                 continue;
             }
-            let path = self.dir.join(split).join("meta_info.txt");
-            let mut f = std::fs::OpenOptions::new()
-                .create(true)
-                .append(true)
-                .open(&path)
-                .map_err(|e| crate::Error::Io { path: path.clone(), cause: e })?;
-            std::io::Write::write_all(&mut f, lines.as_bytes()).map_err(|e| crate::Error::Io { path: path.clone(), cause: e })?;
+            append(&self.dir.join(split).join("meta_info.txt"), &lines)?;
         }
         self.meta.clear();
         Ok(())
     }
+}
+
+/// Appends whole lines to a file (made if missing), in one write.
+fn append(path: &std::path::Path, lines: &str) -> crate::Result<()> {
+    let io = |e| crate::Error::Io { path: path.to_path_buf(), cause: e };
+    let mut f = std::fs::OpenOptions::new().create(true).append(true).open(path).map_err(io)?;
+    std::io::Write::write_all(&mut f, lines.as_bytes()).map_err(io)
 }
 
 impl Sink for Frames {
@@ -218,13 +219,7 @@ impl Sink for Frames {
                 // clip's folders (what `pipeline eval` reads as `{video}.motion.jsonl`).
                 if let (Some(m), Layout::Folders) = (&s.motion, self.layout) {
                     let path = self.dir.join(&s.input.key).join("motion.jsonl");
-                    let line = format!("{{\"window\":{},\"first_frame\":{},\"motion\":{m}}}\n", s.window, s.first_frame);
-                    let mut f = std::fs::OpenOptions::new()
-                        .create(true)
-                        .append(true)
-                        .open(&path)
-                        .map_err(|e| crate::Error::Io { path: path.clone(), cause: e })?;
-                    std::io::Write::write_all(&mut f, line.as_bytes()).map_err(|e| crate::Error::Io { path: path.clone(), cause: e })?;
+                    append(&path, &format!("{{\"window\":{},\"first_frame\":{},\"motion\":{m}}}\n", s.window, s.first_frame))?;
                     if !self.written.contains(&path) {
                         self.written.push(path);
                     }

@@ -99,10 +99,16 @@ impl MotionKind {
     }
 }
 
+impl MotionWeights {
+    /// The weights in the order of [`MotionKind::ALL`].
+    fn by_kind(&self) -> [f64; 6] {
+        [self.still, self.pan, self.shake, self.objects, self.rotate, self.zoom]
+    }
+}
+
 impl MotionConfig {
     pub(crate) fn validate(&self, c: &mut Checker, key: &str) {
-        let w = &self.weights;
-        let ws = [w.still, w.pan, w.shake, w.objects, w.rotate, w.zoom];
+        let ws = self.weights.by_kind();
         for (k, v) in MotionKind::ALL.iter().zip(ws) {
             c.range(&format!("{key}.weights.{}", k.name()), v, 0.0, 1e6);
         }
@@ -121,8 +127,7 @@ impl MotionConfig {
     }
 
     fn kind(&self, rng: &mut Rng) -> MotionKind {
-        let w = &self.weights;
-        let ws = [w.still, w.pan, w.shake, w.objects, w.rotate, w.zoom];
+        let ws = self.weights.by_kind();
         let mut u = rng.uniform() * ws.iter().sum::<f64>();
         for (k, v) in MotionKind::ALL.iter().zip(ws) {
             if u < v {
@@ -205,11 +210,22 @@ impl Sprite {
     /// with a one-pixel anti-aliased edge.
     fn cut(img: &[Vec<f32>; 3], iw: usize, ih: usize, w: usize, h: usize, src: (f64, f64), rng: &mut Rng) -> Sprite {
         let (cx, cy) = (w as f64 / 2.0, h as f64 / 2.0);
-        let polygon: Option<Vec<(f64, f64)>> = (rng.uniform() < 0.5).then(|| {
+        // A polygon as its edges: a point on each and the inward unit normal (inside is where
+        // every edge's cross product has the sign of the polygon's area).
+        let polygon: Option<Vec<(f64, f64, f64, f64)>> = (rng.uniform() < 0.5).then(|| {
             let n = 3 + rng.below(5);
             let mut angles: Vec<f64> = (0..n).map(|_| rng.range(0.0, std::f64::consts::TAU)).collect();
             angles.sort_by(f64::total_cmp);
-            angles.iter().map(|a| (cx + (cx - 1.0) * a.cos(), cy + (cy - 1.0) * a.sin())).collect()
+            let v: Vec<(f64, f64)> = angles.iter().map(|a| (cx + (cx - 1.0) * a.cos(), cy + (cy - 1.0) * a.sin())).collect();
+            let next = |i: usize| v[(i + 1) % v.len()];
+            let sign = (0..v.len()).map(|i| v[i].0 * next(i).1 - next(i).0 * v[i].1).sum::<f64>().signum();
+            (0..v.len())
+                .map(|i| {
+                    let (ex, ey) = (next(i).0 - v[i].0, next(i).1 - v[i].1);
+                    let len = (ex * ex + ey * ey).sqrt().max(1e-9);
+                    (v[i].0, v[i].1, -sign * ey / len, sign * ex / len)
+                })
+                .collect()
         });
         let mut s = Sprite { w, h, rgb: std::array::from_fn(|_| vec![0.0; w * h]), alpha: vec![0.0; w * h] };
         for y in 0..h {
@@ -217,18 +233,7 @@ impl Sprite {
                 let (px, py) = (x as f64 + 0.5, y as f64 + 0.5);
                 // Signed distance inside the edge, in pixels (approximate for the ellipse).
                 let d = match &polygon {
-                    Some(v) => {
-                        // Inside is where every edge's cross product has the sign of the area.
-                        let area: f64 = (0..v.len()).map(|i| v[i].0 * v[(i + 1) % v.len()].1 - v[(i + 1) % v.len()].0 * v[i].1).sum();
-                        (0..v.len())
-                            .map(|i| {
-                                let (a, b) = (v[i], v[(i + 1) % v.len()]);
-                                let (ex, ey) = (b.0 - a.0, b.1 - a.1);
-                                let len = (ex * ex + ey * ey).sqrt().max(1e-9);
-                                area.signum() * (ex * (py - a.1) - ey * (px - a.0)) / len
-                            })
-                            .fold(f64::INFINITY, f64::min)
-                    }
+                    Some(edges) => edges.iter().map(|&(ax, ay, nx, ny)| nx * (px - ax) + ny * (py - ay)).fold(f64::INFINITY, f64::min),
                     _ => {
                         let (nx, ny) = ((px - cx) / cx, (py - cy) / cy);
                         (1.0 - (nx * nx + ny * ny).sqrt()) * cx.min(cy)

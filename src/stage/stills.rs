@@ -94,9 +94,14 @@ impl StageConfig for StillsConfig {
             needs: ctx.needs,
             counters: ctx.counters.clone(),
             sprites: match &self.motion {
-                // Reduced to the largest object the frame can hold, so sampling never skips pixels.
+                // Reduced to the largest object the frame can hold, so sampling never skips pixels
+                // (size 0 is the photo's own: up to 1024 px then).
                 Some(m) if !m.object_paths.is_empty() => {
-                    load_sprites(&m.object_paths, (m.object_size[1] * self.size[0].max(self.size[1]).max(64) as f64).ceil() as usize)?
+                    let side = match self.size[0].max(self.size[1]) {
+                        0 => 1024,
+                        s => s,
+                    };
+                    load_sprites(&m.object_paths, (m.object_size[1] * side as f64).ceil() as usize)?
                 }
                 _ => Vec::new(),
             },

@@ -72,3 +72,29 @@ pub fn generate(out: &Path, inputs: &[&str], sets: &[&str]) -> Output {
     }
     c.output().expect("run pipeline")
 }
+
+/// `pipeline run pipelines/{name} -o out --progress never` with `--set` for each of `sets`.
+pub fn run_pipeline(name: &str, out: &Path, sets: &[&str]) -> Output {
+    let mut c = bin();
+    c.arg("run").arg(Path::new(env!("CARGO_MANIFEST_DIR")).join("pipelines").join(name)).arg("-o").arg(out).args(["--progress", "never"]);
+    for s in sets {
+        c.args(["--set", s]);
+    }
+    c.output().expect("run pipeline")
+}
+
+/// A tiny training file (shallow-4, batch 2, `steps` steps, a checkpoint every 2) on `shards`
+/// that writes to `out/run`; returns its path (`out/train.toml`).
+pub fn tiny_train_config(shards: &Path, out: &Path, steps: usize) -> PathBuf {
+    let path = out.join("train.toml");
+    std::fs::write(
+        &path,
+        format!(
+            "seed = 1\n[model]\ntype = \"shallow\"\nwidth = 4\n[data]\nshards = [{:?}]\nval_fraction = 0.25\nshuffle_buffer = 16\n[optim]\nsteps = {steps}\nbatch = 2\n[validate]\nevery = 4\nmax_samples = 4\n[output]\ndir = {:?}\ncheckpoint_every = 2\n",
+            shards.display().to_string(),
+            out.join("run").display().to_string()
+        ),
+    )
+    .unwrap();
+    path
+}

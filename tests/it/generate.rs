@@ -326,30 +326,20 @@ fn gopro_and_basicsr_layouts_split_by_video_and_pair_by_name() {
 #[test]
 fn stills_motion_is_drawn_per_window_and_recorded_in_key_json() {
     let d = scratch("stills_motion");
-    let o = run(&[
-        "run",
-        concat!(env!("CARGO_MANIFEST_DIR"), "/pipelines/train-data.toml"),
-        "-o",
-        d.to_str().unwrap(),
-        "--progress",
-        "never",
-        "--set",
-        "sources.stills.paths=[]",
-        "--set",
-        "sources.stills.clips=3",
-        "--set",
-        "sources.stills.size=[96, 80]",
-        "--set",
-        "sources.stills.frames=63",
-        "--set",
-        "sources.stills.motion.object_paths=[]",
-        "--set",
-        "transforms.blur.window=7",
-        "--set",
-        "transforms.patches.size=32",
-        "--set",
-        "transforms.patches.per_window=1",
-    ]);
+    let o = run_pipeline(
+        "train-data.toml",
+        &d,
+        &[
+            "sources.stills.paths=[]",
+            "sources.stills.clips=3",
+            "sources.stills.size=[96, 80]",
+            "sources.stills.frames=63",
+            "sources.stills.motion.object_paths=[]",
+            "transforms.blur.window=7",
+            "transforms.patches.size=32",
+            "transforms.patches.per_window=1",
+        ],
+    );
     assert!(o.status.success(), "{}", stderr(&o));
     let mut kinds = std::collections::BTreeSet::new();
     let members = shard_members(&d);

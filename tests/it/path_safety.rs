@@ -65,35 +65,15 @@ fn a_latest_json_naming_files_outside_its_folder_is_refused_by_every_command() {
     // A tiny finished run, and a loadable model elsewhere: if any command followed latest.json
     // there, it would succeed.
     let shards = root.join("shards");
-    let o = run(&[
-        "run",
-        concat!(env!("CARGO_MANIFEST_DIR"), "/pipelines/stills.toml"),
-        "-o",
-        shards.to_str().unwrap(),
-        "--progress",
-        "never",
-        "--set",
-        "sources.stills.clips=2",
-        "--set",
-        "sources.stills.size=[48, 48]",
-        "--set",
-        "sources.stills.frames=9",
-        "--set",
-        "transforms.patches.size=32",
-    ]);
+    let o = run_pipeline(
+        "stills.toml",
+        &shards,
+        &["sources.stills.clips=4", "sources.stills.size=[48, 48]", "sources.stills.frames=9", "transforms.patches.size=32"],
+    );
     assert!(o.status.success(), "{}", stderr(&o));
-    let cfg = root.join("train.toml");
-    let run_dir = root.join("run");
-    std::fs::write(
-        &cfg,
-        format!(
-            "seed = 1\n[model]\ntype = \"shallow\"\nwidth = 4\n[data]\nshards = [{:?}]\nval_fraction = 0.5\nshuffle_buffer = 4\n[optim]\nsteps = 2\nbatch = 2\n[validate]\nevery = 2\nmax_samples = 2\n[output]\ndir = {:?}\ncheckpoint_every = 1\n",
-            shards.display().to_string(),
-            run_dir.display().to_string()
-        ),
-    )
-    .unwrap();
+    let cfg = tiny_train_config(&shards, &root, 2);
     let cfg = cfg.to_str().unwrap();
+    let run_dir = root.join("run");
     let o = run(&["train", "--config", cfg, "--progress", "never"]);
     assert!(o.status.success(), "{}", stderr(&o));
     let elsewhere = root.join("elsewhere");

@@ -322,16 +322,7 @@ fn shipped_models_load_and_deblur_a_patch() {
 fn the_cli_summary_of_a_resumed_run_names_the_steps_its_time_covers() {
     let shards = tiny_shards("train_cli_resume_shards");
     let out = scratch("train_cli_resume");
-    let cfg_path = out.join("train.toml");
-    std::fs::write(
-        &cfg_path,
-        format!(
-            "seed = 1\n[model]\ntype = \"shallow\"\nwidth = 4\n[data]\nshards = [{:?}]\nval_fraction = 0.25\nshuffle_buffer = 16\n[optim]\nsteps = 4\nbatch = 2\n[validate]\nevery = 4\nmax_samples = 4\n[output]\ndir = {:?}\ncheckpoint_every = 2\n",
-            shards.display().to_string(),
-            out.join("run").display().to_string()
-        ),
-    )
-    .unwrap();
+    let cfg_path = tiny_train_config(&shards, &out, 4);
     let cfg = cfg_path.to_str().unwrap();
     let first = run(&["train", "--config", cfg, "--progress", "never"]);
     assert!(first.status.success(), "{}", stderr(&first));
@@ -354,19 +345,7 @@ fn the_cli_summary_of_a_resumed_run_names_the_steps_its_time_covers() {
 fn a_folder_holding_a_run_is_not_reused_without_resume_or_overwrite() {
     let shards = tiny_shards("train_reuse_shards");
     let out = scratch("train_reuse");
-    let cfg_path = out.join("train.toml");
-    let write_cfg = |steps: usize| {
-        std::fs::write(
-            &cfg_path,
-            format!(
-                "seed = 1\n[model]\ntype = \"shallow\"\nwidth = 4\n[data]\nshards = [{:?}]\nval_fraction = 0.25\nshuffle_buffer = 16\n[optim]\nsteps = {steps}\nbatch = 2\n[validate]\nevery = 4\nmax_samples = 4\n[output]\ndir = {:?}\ncheckpoint_every = 2\n",
-                shards.display().to_string(),
-                out.join("run").display().to_string()
-            ),
-        )
-        .unwrap()
-    };
-    write_cfg(4);
+    let cfg_path = tiny_train_config(&shards, &out, 4);
     let cfg = cfg_path.to_str().unwrap();
     let run_dir = out.join("run");
     let first = run(&["train", "--config", cfg, "--progress", "never"]);
