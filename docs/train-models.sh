@@ -7,6 +7,9 @@
 #   bash docs/train-models.sh phase_coded 16        # or: conventional 16, phase_coded 32, ...
 #   DATA=../data RUNS=../runs STEPS=25000 bash docs/train-models.sh conventional 16
 #   bash docs/train-models.sh phase_coded shallow   # the shallow model (32 filters)
+#   INIT=models/unet16-coded STEPS=5000 LR=5e-4 NAME=ft bash docs/train-models.sh phase_coded 16
+#                                                   # fine-tuning a shipped model: a run of its own
+#                                                   # (STEPS new steps, a schedule peaking at LR)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 CAM=${1:?camera: phase_coded or conventional}
@@ -14,6 +17,8 @@ WIDTH=${2:-16}
 DATA=${DATA:-../data}
 RUNS=${RUNS:-../runs}
 STEPS=${STEPS:-25000}
+LR=${LR:-1e-3}
+WARMUP=${WARMUP:-200}
 PIPELINE=${PIPELINE:-target/release/pipeline}
 shards=""
 for n in 7 9 11 13; do shards="$shards${shards:+, }\"$DATA/shards/$CAM-n$n/*.tar\""; done
@@ -22,10 +27,12 @@ if [ "$WIDTH" = shallow ]; then
 else
   config=pipelines/train.toml; name=unet$WIDTH-$CAM; model=(--set "model.base=$WIDTH")
 fi
+[ -n "${NAME:-}" ] && name="$name-$NAME"
+init=(); [ -n "${INIT:-}" ] && init=(--set "init=\"$INIT\"")
 dir="$RUNS/$name"
 resume=(); [ -f "$dir/latest.json" ] && resume=(--resume)
-RAYON_NUM_THREADS=${THREADS:-1} exec nice -n 19 "$PIPELINE" train --config "$config" "${resume[@]}" --progress never "${model[@]}" \
+RAYON_NUM_THREADS=${THREADS:-1} exec nice -n 19 "$PIPELINE" train --config "$config" "${resume[@]}" --progress never "${model[@]}" "${init[@]}" \
   --set "data.shards=[$shards]" --set data.val_fraction=0.1 --set data.shuffle_buffer=8192 \
-  --set optim.steps="$STEPS" --set optim.lr=1e-3 --set optim.lr_min_factor=0.05 --set optim.warmup_steps=200 \
+  --set optim.steps="$STEPS" --set optim.lr="$LR" --set optim.lr_min_factor=0.05 --set optim.warmup_steps="$WARMUP" \
   --set validate.every=500 --set validate.max_samples=512 \
   --set output.checkpoint_every=250 --set output.average_last=8 --set output.dir="$dir"

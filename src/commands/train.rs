@@ -19,6 +19,10 @@ pub struct TrainArgs {
     /// (without it, such a folder is refused).
     #[arg(long)]
     pub overwrite: bool,
+    /// Checkpoint and stop after this step, as if interrupted there (exit 0); `--resume`
+    /// continues on the same schedule. For runs split across sessions or job slots.
+    #[arg(long, value_name = "STEP")]
+    pub stop_after: Option<usize>,
     /// Progress display on stderr.
     #[arg(long, value_enum, default_value_t = ProgressMode::Auto)]
     pub progress: ProgressMode,
@@ -29,14 +33,14 @@ pub struct TrainArgs {
 /// # Errors
 /// Whatever the command reports (exit codes in `main.rs`).
 pub fn command(a: TrainArgs) -> anyhow::Result<()> {
-    let TrainArgs { config, sets, resume, overwrite, progress } = a;
+    let TrainArgs { config, sets, resume, overwrite, stop_after, progress } = a;
     let table = crate::config::load(&config, &sets)?;
     let origin = crate::config::Origin::new(&config.display().to_string(), None, &sets);
     let cfg = match crate::config::deserialize_all::<crate::train::TrainConfig>(&table) {
         (Some(cfg), errs) if errs.is_empty() => cfg,
         (_, errs) => return Err(origin.errors(errs).into()),
     };
-    let r = crate::train::train(&cfg, &crate::train::TrainOptions { resume, overwrite, progress, stop_after: None })?;
+    let r = crate::train::train(&cfg, &crate::train::TrainOptions { resume, overwrite, progress, stop_after })?;
     let last = r.validation.last();
     // After a resume, the time and rate are this run's alone: say which steps they cover.
     let resumed = match r.resumed_from {

@@ -130,9 +130,10 @@ pub struct TrainConfig {
     pub seed: u64,
     pub model: Arch,
     /// Start from the weights of this model (a model folder as shipped in `models/`, or a
-    /// `.safetensors` file) instead of fresh ones, with a fresh optimizer: fine-tuning. A folder
-    /// with a `report.json` also hands over its step count and history, so `optim.steps` counts
-    /// the whole training and the schedule and curves continue where it stopped.
+    /// `.safetensors` file) instead of fresh ones, with a fresh optimizer: fine-tuning. The run
+    /// is one of its own: `optim.steps` new steps on a new schedule peaking at `optim.lr`
+    /// (warm-up included). A folder's `report.json` history is kept in the report (`before`)
+    /// and drawn before step 0 in the curves.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub init: Option<String>,
     pub data: DataConfig,
@@ -218,6 +219,17 @@ impl TrainConfig {
             c.fail("output.average_last", "averaging needs optim.engine = \"fast\" (BatchNorm is recalibrated on the mean)");
         }
         c.errors
+    }
+
+    /// The learning-rate schedule in words, for the report.
+    pub fn schedule_words(&self) -> String {
+        let o = &self.optim;
+        let shape = match o.schedule {
+            LrSchedule::Constant => format!("constant {:e}", o.lr),
+            LrSchedule::Cosine => format!("cosine from {:e} to {:e}", o.lr, o.lr * o.lr_min_factor),
+        };
+        let from = self.init.as_ref().map_or(String::from("fresh weights"), |i| format!("fine-tuning {i}"));
+        format!("{shape} over steps 1 to {} after {} warm-up steps; {from}", o.steps, o.warmup_steps)
     }
 
     /// Learning rate at `step` (0-based).

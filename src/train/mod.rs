@@ -217,6 +217,8 @@ pub struct TrainReport {
     pub parameters: usize,
     pub steps: usize,
     pub resumed_from: Option<usize>,
+    /// Stopped by SIGINT or SIGTERM; `steps` were done and checkpointed.
+    pub interrupted: bool,
     pub seconds: f64,
     pub patches_per_s: f64,
     pub train_inputs: Vec<u64>,
@@ -225,10 +227,26 @@ pub struct TrainReport {
     pub metrics_convention: &'static str,
     pub loss: Vec<LossPoint>,
     pub validation: Vec<ValPoint>,
+    /// The learning-rate schedule this run followed, in words.
+    pub schedule: String,
+    /// With `init`: the initial model's own training, whose steps come before this run's step 1.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub before: Option<Before>,
     /// `model.safetensors`, the mean of the last checkpoints (`output.average_last`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub averaged: Option<Averaged>,
     pub config: TrainConfig,
+}
+
+/// The training history of the model a fine-tuning run started from (`init`).
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Before {
+    /// The `init` value.
+    pub model: String,
+    /// Its training steps; in the curves they run up to step 0 of this run.
+    pub steps: usize,
+    pub loss: Vec<LossPoint>,
+    pub validation: Vec<ValPoint>,
 }
 
 /// The averaged model of a run and its validation score.
@@ -351,6 +369,27 @@ fn run_files(dir: &Path) -> Vec<PathBuf> {
     v
 }
 
+/// `--resume` continues the learning-rate schedule the run started with: a changed one would
+/// jump (more `optim.steps` raises the cosine's rate again), so it is refused, naming the keys.
+fn schedule_unchanged(was: &serde_json::Value, now: &OptimConfig, dir: &Path) -> Result<()> {
+    let now = serde_json::to_value(now).expect("json");
+    let changed: Vec<String> = ["steps", "lr", "warmup_steps", "lr_min_factor", "schedule"]
+        .iter()
+        .filter(|k| was.get(**k).is_some() && was.get(**k) != now.get(**k))
+        .map(|k| format!("optim.{k} {} -> {}", was[*k], now[*k]))
+        .collect();
+    if changed.is_empty() {
+        return Ok(());
+    }
+    Err(Error::Usage(format!(
+        "{}: --resume continues the run's learning-rate schedule, and this changes it ({}); resume without the change, or \
+         train further on a new schedule with --set init={:?} and a fresh output.dir",
+        dir.display(),
+        changed.join(", "),
+        dir.display().to_string()
+    )))
+}
+
 /// A run that does not resume starts in a folder without one: refused when the folder holds a
 /// run, unless `overwrite`, which removes that run's files first (so no old checkpoint is left
 /// beside the new ones).
@@ -387,6 +426,8 @@ pub struct Trainer {
     engine: Engine,
     pub step: usize,
     start: usize,
+    before: Option<Before>,
+    interrupted: bool,
     end: usize,
     pub val: Vec<Pair>,
     pub train_inputs: std::collections::BTreeSet<u64>,
@@ -429,12 +470,16 @@ impl Trainer {
         let mut optim_bytes = None;
         let mut start = 0;
         let mut history: (Vec<LossPoint>, Vec<ValPoint>) = (Vec::new(), Vec::new());
-        // The history of the steps before `start`, from a report.json of the run that wrote them.
+        let mut before = None;
+        // What an earlier report.json holds of its run.
         #[derive(Deserialize)]
         struct History {
             steps: usize,
             loss: Vec<LossPoint>,
             validation: Vec<ValPoint>,
+            #[serde(default)]
+            before: Option<Before>,
+            config: Option<serde_json::Value>,
         }
         let read_history = |p: &Path| -> Option<History> { std::fs::read(p).ok().and_then(|b| serde_json::from_slice(&b).ok()) };
         if let (Some(init), false) = (&cfg.init, opts.resume) {
@@ -448,16 +493,14 @@ impl Trainer {
                 )));
             }
             model = net;
-            if let Some(h) = path.is_dir().then(|| read_history(&path.join("report.json"))).flatten() {
-                if h.steps >= cfg.optim.steps {
-                    return Err(Error::Invalid(format!(
-                        "optim.steps = {} counts the whole training, and {init} was trained for {} steps already: set it higher",
-                        cfg.optim.steps, h.steps
-                    )));
-                }
-                start = h.steps;
-                history = (h.loss, h.validation);
-            }
+            // A fine-tuning run is a run of its own (steps 1 to optim.steps, a fresh schedule
+            // peaking at optim.lr); the initial model's history is kept for the curves.
+            before = path.is_dir().then(|| read_history(&path.join("report.json"))).flatten().map(|h| Before {
+                model: init.clone(),
+                steps: h.steps,
+                loss: h.loss,
+                validation: h.validation,
+            });
         }
         if opts.resume {
             let lp = dir.join("latest.json");
@@ -484,9 +527,13 @@ impl Trainer {
             start = latest.step;
             // A run stopped before writing its report resumes without the history.
             if let Some(mut h) = read_history(&dir.join("report.json")) {
+                if let Some(was) = h.config.as_ref().and_then(|c| c.get("optim")) {
+                    schedule_unchanged(was, &cfg.optim, &dir)?;
+                }
                 h.loss.retain(|p| p.step <= start);
                 h.validation.retain(|p| p.step <= start);
                 history = (h.loss, h.validation);
+                before = h.before;
             }
         }
         let engine = if fast {
@@ -514,6 +561,8 @@ impl Trainer {
             engine,
             step: start,
             start,
+            before,
+            interrupted: false,
             end,
             val: Vec::new(),
             train_inputs: Default::default(),
@@ -622,6 +671,7 @@ impl Trainer {
     /// error to stop with, which says how to continue.
     fn checkpoint_and_stop(&mut self) -> Error {
         let done = self.step;
+        self.interrupted = true;
         let saved = done % self.cfg.output.checkpoint_every == 0;
         let res = if saved {
             Ok(())
@@ -630,11 +680,11 @@ impl Trainer {
             self.engine
                 .optim_bytes()
                 .and_then(|o| save_checkpoint(&self.dir, &self.engine.net(), o, &self.cfg.model, self.cfg.seed, done).map(|_| ()))
-                .and_then(|()| self.write_report().map(|_| ()))
-        };
+        }
+        .and_then(|()| self.write_report().map(|_| ()));
         match res {
             Ok(()) => {
-                Error::Invalid(format!("interrupted after step {done}: checkpoint saved in {}; continue with --resume", self.dir.display()))
+                Error::Interrupted(format!("after step {done}: checkpoint saved in {}; continue with --resume", self.dir.display()))
             }
             Err(e) => e,
         }
@@ -648,6 +698,7 @@ impl Trainer {
             parameters: self.engine.num_params(),
             steps: self.step,
             resumed_from: (self.start > 0).then_some(self.start),
+            interrupted: self.interrupted,
             seconds: self.t0.elapsed().as_secs_f64(),
             patches_per_s: ((self.step - self.start) * self.cfg.optim.batch) as f64 / self.t_train.elapsed().as_secs_f64().max(1e-9),
             train_inputs: self.train_inputs.iter().copied().collect(),
@@ -656,6 +707,8 @@ impl Trainer {
             metrics_convention: metrics::CONVENTION,
             loss: self.losses.clone(),
             validation: self.vals.clone(),
+            schedule: self.cfg.schedule_words(),
+            before: self.before.clone(),
             averaged: self.averaged.clone(),
             config: self.cfg.clone(),
         }
@@ -752,7 +805,21 @@ pub fn training_curves(path: &std::path::Path, r: &TrainReport) -> crate::Result
             .collect(),
         color: [1.0, 1.0, 1.0],
     };
-    crate::plot::panel(&mut c, (10, 10, 880, 300), &format!("LOG10 TRAINING LOSS ({})", r.arch.to_uppercase()), "STEP", &[loss, mean]);
+    // A fine-tuning run draws the initial model's own training before its step 0, in grey (on
+    // the initial run's own data, so its levels need not join this run's).
+    let grey = [0.5, 0.5, 0.5];
+    let shift = |step: usize| step as f64 - r.before.as_ref().map_or(0.0, |b| b.steps as f64);
+    let earlier: Vec<crate::plot::Series> = r
+        .before
+        .iter()
+        .map(|b| {
+            let kb = (b.loss.len() / 100).max(1);
+            let points = b.loss.windows(kb).map(|w| (shift(w[kb - 1].step), (w.iter().map(|p| p.loss).sum::<f64>() / kb as f64).max(1e-12).log10()));
+            crate::plot::Series { name: "INITIAL MODEL'S RUN", points: points.collect(), color: grey }
+        })
+        .collect();
+    let series: Vec<crate::plot::Series> = [loss, mean].into_iter().chain(earlier).collect();
+    crate::plot::panel(&mut c, (10, 10, 880, 300), &format!("LOG10 TRAINING LOSS ({})", r.arch.to_uppercase()), "STEP", &series);
     let model = crate::plot::Series {
         name: "MODEL",
         points: r.validation.iter().map(|v| (v.step as f64, v.model.psnr_rgb)).collect(),
@@ -763,7 +830,13 @@ pub fn training_curves(path: &std::path::Path, r: &TrainReport) -> crate::Result
         points: r.validation.iter().map(|v| (v.step as f64, v.input.psnr_rgb)).collect(),
         color: [0.6, 0.6, 0.9],
     };
-    crate::plot::panel(&mut c, (10, 330, 880, 300), "VALIDATION PSNR RGB (DB)", "STEP", &[model, input]);
+    let earlier = r.before.iter().map(|b| crate::plot::Series {
+        name: "INITIAL MODEL'S RUN",
+        points: b.validation.iter().map(|v| (shift(v.step), v.model.psnr_rgb)).collect(),
+        color: grey,
+    });
+    let series: Vec<crate::plot::Series> = [model, input].into_iter().chain(earlier).collect();
+    crate::plot::panel(&mut c, (10, 330, 880, 300), "VALIDATION PSNR RGB (DB)", "STEP", &series);
     c.save(path)
 }
 
@@ -836,11 +909,22 @@ fn keep_latest(recent: &mut std::collections::VecDeque<T4>, k: usize, batch: &[P
 /// Bad shards (named), an unwritable output folder, or a non-finite loss (naming the step; the
 /// last good checkpoint stays).
 pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
-    let mut t = Trainer::new(cfg, opts)?;
-    let shards = crate::io::paths::expand_paths(&cfg.data.shards, &["tar"])?;
+    // Shards that match nothing are a usage error naming the key, found before the output
+    // folder is made.
+    let shards = crate::io::paths::expand_paths(&cfg.data.shards, &["tar"]).map_err(|e| match e {
+        Error::Io { path, cause } if cause.kind() == std::io::ErrorKind::NotFound => {
+            Error::Usage(format!("data.shards: {}: no such folder", path.display()))
+        }
+        Error::Invalid(m) => Error::Usage(format!("data.shards: {m}")),
+        e => e,
+    })?;
     if shards.is_empty() {
-        return Err(Error::Invalid("data.shards: no .tar file found".into()));
+        return Err(Error::Usage(format!("data.shards = {:?}: no .tar file found", cfg.data.shards)));
     }
+    if let Some(p) = shards.iter().find(|p| !p.exists()) {
+        return Err(Error::Usage(format!("data.shards: {}: no such file or folder", p.display())));
+    }
+    let mut t = Trainer::new(cfg, opts)?;
     // Which inputs went where, and the validation samples.
     let mut size = None;
     let mut val = ValPick::new(cfg.validate.max_samples, cfg.seed);
@@ -901,6 +985,7 @@ mod tests {
             parameters: 1,
             steps: 2000,
             resumed_from: None,
+            interrupted: false,
             seconds: 1.0,
             patches_per_s: 1.0,
             train_inputs: Vec::new(),
@@ -909,6 +994,8 @@ mod tests {
             metrics_convention: "test",
             loss,
             validation: Vec::new(),
+            schedule: String::new(),
+            before: None,
             averaged: None,
             config: cfg,
         };

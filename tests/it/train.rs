@@ -133,6 +133,9 @@ fn save_then_load_gives_identical_outputs_and_resume_matches_an_uninterrupted_ru
     }
     let csv = std::fs::read_to_string(b.join("history.csv")).unwrap();
     assert_eq!(csv.lines().count(), 7, "header and six steps:\n{csv}");
+    // The steps before the resume went through report.json and back without losing a digit.
+    let csv_a = std::fs::read_to_string(a.join("history.csv")).unwrap();
+    assert_eq!(csv.lines().take(3).collect::<Vec<_>>(), csv_a.lines().take(3).collect::<Vec<_>>());
     assert!(csv.starts_with("step,lr,loss,"));
     let (oa, ob) = (outputs(&a.join("model-0000006.safetensors")), outputs(&b.join("model-0000006.safetensors")));
     let worst = oa.iter().zip(&ob).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
@@ -167,8 +170,8 @@ fn the_run_folders_model_is_the_mean_of_the_last_checkpoints_until_a_resume_pass
     let shards = tiny_shards("train_avg_shards");
     let d = scratch("train_avg");
     let mut c = config(&shards, &d, "average_last = 3");
-    c.optim.steps = 12; // checkpoints at 3, 6, 9 and 12
-    let r = train(&c, &opts(None, false)).unwrap();
+    c.optim.steps = 15; // checkpoints at 3, 6, 9 and 12, where it stops
+    let r = train(&c, &opts(Some(12), false)).unwrap();
     let avg = r.averaged.as_ref().expect("an averaged model in the report");
     assert_eq!(avg.steps, vec![6, 9, 12]);
     assert!(avg.model.psnr_rgb.is_finite() && avg.input.psnr_rgb.is_finite());
@@ -180,7 +183,6 @@ fn the_run_folders_model_is_the_mean_of_the_last_checkpoints_until_a_resume_pass
     // The folder stands for the averaged model ...
     assert_eq!(weights(&d), m);
     // ... until a resumed run (without averaging) writes a later checkpoint.
-    c.optim.steps = 15;
     c.output.average_last = 1;
     let r = train(&c, &opts(None, true)).unwrap();
     assert!(r.averaged.is_none());
@@ -188,7 +190,7 @@ fn the_run_folders_model_is_the_mean_of_the_last_checkpoints_until_a_resume_pass
 }
 
 #[test]
-fn fine_tuning_starts_from_the_init_models_weights_step_and_history() {
+fn fine_tuning_starts_from_the_init_models_weights_on_a_schedule_of_its_own() {
     let shards = tiny_shards("train_init_shards");
     let (a, b) = (scratch("train_init_a"), scratch("train_init_b"));
     let mut ca = config(&shards, &a, "");
@@ -202,13 +204,17 @@ fn fine_tuning_starts_from_the_init_models_weights_step_and_history() {
     cb.optim.lr = 1e-8;
     cb.optim.warmup_steps = 0;
     let rb = train(&cb, &opts(None, false)).unwrap();
-    // The step count and the history continue the init model's.
+    // A run of its own (issue 31): steps 1 to 8 on a new schedule warming up to its own optim.lr,
+    // the initial model's history kept beside it.
     assert_eq!(rb.loss.iter().map(|p| p.step).collect::<Vec<_>>(), (1..=8).collect::<Vec<_>>());
-    for (p, q) in ra.loss.iter().zip(&rb.loss) {
-        assert!((p.loss - q.loss).abs() <= 1e-12 * p.loss.abs(), "step {}: {} vs {}", p.step, p.loss, q.loss);
-    }
-    assert!(!b.join("model-0000006.safetensors").exists() && b.join("model-0000008.safetensors").exists());
-    // Two steps at lr 1e-8 leave the init weights, far from a fresh model's.
+    assert_eq!(rb.loss[0].lr, 1e-8, "a fine-tuning run starts its own schedule");
+    let before = rb.before.as_ref().expect("the initial model's history");
+    assert_eq!(before.steps, 6);
+    assert_eq!(before.loss.len(), ra.loss.len());
+    assert!(before.loss.iter().zip(&ra.loss).all(|(p, q)| p.loss == q.loss));
+    assert!(rb.schedule.contains("fine-tuning") && rb.schedule.contains("steps 1 to 8"), "{}", rb.schedule);
+    assert!(b.join("model-0000008.safetensors").exists());
+    // Steps at lr 1e-8 leave the init weights, far from a fresh model's.
     let (wa, wb) = (weights(&a.join("model.safetensors")), weights(&b.join("model-0000008.safetensors")));
     assert_eq!(wa.len(), wb.len());
     let worst = wa.iter().zip(&wb).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
@@ -220,16 +226,12 @@ fn fine_tuning_starts_from_the_init_models_weights_step_and_history() {
     train(&cf, &opts(None, false)).unwrap();
     let wf = weights(&fresh.join("model-0000001.safetensors"));
     assert!(wa.iter().zip(&wf).any(|(x, y)| (x - y).abs() > 1e-3), "the fresh model is the init model");
-    // A model of another shape, or a step count the init model has already reached, is refused by key.
+    // A model of another shape is refused by key.
     let mut bad = config(&shards, &scratch("train_init_bad"), "");
     bad.init = Some(a.display().to_string());
     bad.model = pipeline::model::Arch::Shallow { width: 4 };
     let e = train(&bad, &opts(None, false)).unwrap_err().to_string();
     assert!(e.contains("init") && e.contains("shallow-8") && e.contains("shallow-4"), "{e}");
-    bad.model = ca.model;
-    bad.optim.steps = 6;
-    let e = train(&bad, &opts(None, false)).unwrap_err().to_string();
-    assert!(e.contains("optim.steps") && e.contains("6 steps"), "{e}");
 }
 
 #[test]
@@ -324,9 +326,14 @@ fn the_cli_summary_of_a_resumed_run_names_the_steps_its_time_covers() {
     let out = scratch("train_cli_resume");
     let cfg_path = tiny_train_config(&shards, &out, 4);
     let cfg = cfg_path.to_str().unwrap();
-    let first = run(&["train", "--config", cfg, "--progress", "never"]);
+    let first = run(&["train", "--config", cfg, "--progress", "never", "--set", "optim.steps=7", "--stop-after", "4"]);
     assert!(first.status.success(), "{}", stderr(&first));
     assert!(stderr(&first).contains("shallow-4: 4 steps (in "), "{}", stderr(&first));
+    // --resume keeps the run's schedule: a changed optim.steps would make the rate jump (issue 31).
+    let changed = run(&["train", "--config", cfg, "--progress", "never", "--resume", "--set", "optim.steps=9"]);
+    assert_eq!(changed.status.code(), Some(2), "{}", stderr(&changed));
+    let e = stderr(&changed);
+    assert!(e.contains("optim.steps 7 -> 9") && e.contains("init="), "{e}");
     let second = run(&["train", "--config", cfg, "--progress", "never", "--resume", "--set", "optim.steps=7"]);
     assert!(second.status.success(), "{}", stderr(&second));
     let e = stderr(&second);
@@ -368,4 +375,42 @@ fn a_folder_holding_a_run_is_not_reused_without_resume_or_overwrite() {
     assert!(over.status.success(), "{}", stderr(&over));
     let ckpts: Vec<String> = files(&run_dir).into_iter().filter(|f| f.starts_with("model-")).collect();
     assert_eq!(ckpts, vec!["model-0000002.safetensors"], "{ckpts:?}");
+    // A second run into a folder in use is refused by the lock, even with --overwrite, and the
+    // first run goes on.
+    let busy = run_dir.join(".train.lock");
+    let long = bin()
+        .args(["train", "--config", cfg, "--progress", "never", "--overwrite", "--set", "optim.steps=1000000", "--set", "output.checkpoint_every=1000000"])
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t0 = std::time::Instant::now();
+    // The lock is taken with the folder's first file; wait until that run has begun stepping.
+    while !(busy.exists() && files(&run_dir).iter().all(|f| !f.starts_with("model-"))) && t0.elapsed().as_secs() < 30 {
+        std::thread::sleep(std::time::Duration::from_millis(100));
+    }
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    let second = run(&["train", "--config", cfg, "--progress", "never", "--overwrite", "--set", "optim.steps=2"]);
+    std::process::Command::new("kill").args(["-TERM", &long.id().to_string()]).status().unwrap();
+    let first = long.wait_with_output().unwrap();
+    let e = stderr(&second);
+    assert_eq!(second.status.code(), Some(2), "{e}");
+    assert!(e.contains("another `pipeline train`"), "{e}");
+    assert_eq!(first.status.code(), Some(130), "the first run was not running: {}", stderr(&first));
+}
+
+/// Usage mistakes exit 2 naming what is wrong, before anything is written (issue 31): shards that
+/// match nothing name the key; a missing --config names the file.
+#[test]
+fn shards_that_match_nothing_and_a_missing_config_are_usage_errors() {
+    let d = scratch("train_usage");
+    for shards in [d.join("none/*.tar"), d.join("no-such-folder")] {
+        let cfg = tiny_train_config(&shards, &d, 4);
+        let o = run(&["train", "--config", cfg.to_str().unwrap(), "--progress", "never"]);
+        assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+        assert!(stderr(&o).contains("data.shards"), "{}", stderr(&o));
+        assert!(!d.join("run").exists(), "the output folder was made");
+    }
+    let o = run(&["train", "--config", d.join("absent.toml").to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("absent.toml") && stderr(&o).contains("no such configuration file"), "{}", stderr(&o));
 }
