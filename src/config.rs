@@ -129,10 +129,23 @@ pub fn apply_sets(table: &mut toml::Table, sets: &[String]) -> Result<(), String
     for s in sets {
         let (path, value) = s.split_once('=').ok_or_else(|| format!("--set {s:?}: expected key.path=value"))?;
         let value = value.trim();
-        let parsed: toml::Value = toml::from_str::<toml::Table>(&format!("v = {value}"))
-            .ok()
-            .and_then(|mut t| t.remove("v"))
-            .unwrap_or_else(|| toml::Value::String(value.to_string()));
+        let parsed = toml::from_str::<toml::Table>(&format!("v = {value}")).map(|mut t| t.remove("v").expect("v"));
+        // A bare word is a string (`camera.type=conventional`); what starts like a number, an
+        // array, a table or a quoted string must parse as one, or it is an error in plain words.
+        let literal = value.starts_with(|c: char| c.is_ascii_digit() || "[{\"'+-.".contains(c));
+        let parsed = match parsed {
+            Ok(v) => v,
+            Err(e) if literal => {
+                let why = e.message().lines().next().unwrap_or("").to_string();
+                let hint = if value.trim_start_matches(['+', '-']).chars().all(|c| c.is_ascii_digit()) {
+                    " (integers are at most 9223372036854775807)".to_string()
+                } else {
+                    String::new()
+                };
+                return Err(format!("--set {}: {value:?} is not a TOML value: {why}{hint}", path.trim()));
+            }
+            Err(_) => toml::Value::String(value.to_string()),
+        };
         let keys: Vec<&str> = path.trim().split('.').collect();
         let mut cur = &mut *table;
         for (i, k) in keys.iter().enumerate() {
@@ -153,7 +166,11 @@ pub fn apply_sets(table: &mut toml::Table, sets: &[String]) -> Result<(), String
 /// # Errors
 /// See above.
 pub fn load(path: &Path, sets: &[String]) -> Result<toml::Table, crate::Error> {
-    let text = std::fs::read_to_string(path).map_err(|e| crate::Error::Io { path: path.to_path_buf(), cause: e })?;
+    let text = std::fs::read_to_string(path).map_err(|e| match e.kind() {
+        // A config that is not there is a mistake in the command line: exit 2.
+        std::io::ErrorKind::NotFound => crate::Error::Usage(format!("{}: no such configuration file", path.display())),
+        _ => crate::Error::Io { path: path.to_path_buf(), cause: e },
+    })?;
     parse(&text, &path.display().to_string(), sets)
 }
 
@@ -560,5 +577,19 @@ inputs = ["blur"]
         });
         assert_eq!(blur.unwrap().window, 11);
         assert_eq!(blur.unwrap().camera.kind, crate::optics::CameraKind::Conventional);
+    }
+
+    /// Values that start like a TOML literal but do not parse are named in plain words (issue
+    /// 31), not passed on as strings for serde to call "invalid type: string".
+    #[test]
+    fn a_set_value_that_is_not_toml_is_named_in_plain_words() {
+        let e = plan_of(GOOD, &["seed=18446744073709551615"]).unwrap_err().to_string();
+        assert!(e.contains("--set seed") && e.contains("not a TOML value") && e.contains("at most 9223372036854775807"), "{e}");
+        let noisy = GOOD.replace("[sinks.out]\ntype = \"shards\"\ninputs = [\"blur\"]", "[transforms.noise]\ntype = \"noise\"\ninputs = [\"blur\"]\nsigma = 1.0\n[sinks.out]\ntype = \"shards\"\ninputs = [\"noise\"]");
+        assert!(plan_of(&noisy, &[]).is_ok());
+        let e = plan_of(&noisy, &["transforms.noise.sigma=[1,"]).unwrap_err().to_string();
+        assert!(e.contains("--set transforms.noise.sigma") && e.contains("not a TOML value") && !e.contains("untagged"), "{e}");
+        let e = plan_of(&noisy, &["transforms.noise.sigma=abc"]).unwrap_err().to_string();
+        assert!(e.contains("transforms.noise.sigma") && e.contains("a number or a range") && !e.contains("untagged"), "{e}");
     }
 }

@@ -23,6 +23,10 @@ pub enum Error {
     /// The command as given cannot do anything (no input found, say): exit code 2.
     #[error("{0}")]
     Usage(String),
+    /// Stopped by SIGINT or SIGTERM at a safe point: what was kept and how to continue. Exit
+    /// code 130, the shell's for SIGINT.
+    #[error("interrupted: {0}")]
+    Interrupted(String),
     /// A file name read from a file in a folder the tool works in (a manifest's shard, a run's
     /// `latest.json`) that would lead outside that folder: refused, nothing opened through it.
     #[error("{}: {field} = {name:?} is {why}; refusing to follow it", file.display())]

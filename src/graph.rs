@@ -300,9 +300,6 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
         return Err(e);
     }
     let interrupted = crate::signal::interrupted();
-    if interrupted {
-        return Err(Error::Invalid("interrupted: unfinished outputs were removed; finished inputs are in the manifest".into()));
-    }
     let secs = t0.elapsed().as_secs_f64();
     let (frames, windows, samples) =
         (Counters::get(&counters.frames), Counters::get(&counters.windows), Counters::get(&counters.samples_kept));
@@ -337,6 +334,13 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
     // A trainer sink writes its own report.json; the generation report then goes beside it.
     let stem = plan.sink().report_stem();
     write_report(&out_dir, opts, stem, &report)?;
+    if interrupted {
+        return Err(Error::Interrupted(format!(
+            "{} of {} inputs finished and listed in the manifest, unfinished outputs removed (report.json says which); \
+             run the same command again to do the rest",
+            report.inputs_done, n_selected
+        )));
+    }
     Ok(Outcome { report, out_dir })
 }
 

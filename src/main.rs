@@ -1,5 +1,5 @@
 //! The `pipeline` binary: parse the command line, run, map errors to exit codes
-//! (0 ok, 1 the work failed, 2 usage or configuration error).
+//! (0 ok, 1 the work failed, 2 usage or configuration error, 130 interrupted).
 
 use clap::Parser;
 
@@ -8,6 +8,7 @@ fn main() {
     if let Err(e) = pipeline::cli::run(cli) {
         let code = match e.downcast_ref::<pipeline::Error>() {
             Some(pipeline::Error::Config(_) | pipeline::Error::ConfigText(_) | pipeline::Error::Usage(_)) => 2,
+            Some(pipeline::Error::Interrupted(_)) => 130,
             _ => 1,
         };
         eprintln!("error: {e:#}");

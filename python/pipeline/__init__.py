@@ -100,6 +100,10 @@ class CodedBlurDataset(_Base):
         if isinstance(paths, (str, os.PathLike)):
             paths = [paths]
         self.paths = [os.fspath(p) for p in (paths or [])]
+        for p in self.paths:
+            # A missing file or folder fails here, named once, not when first iterated.
+            if p != "-" and not any(c in p for c in "*?[") and not os.path.exists(p):
+                raise FileNotFoundError(f"{p}: no such file or folder")
         self.config = None if config is None else os.fspath(config)
         self.overrides = dict(overrides or {})
         if seed is not None:

@@ -52,13 +52,18 @@ class UNet(nn.Module):
         self.outc = nn.Conv2d(b, 3, 1)
 
     def forward(self, x):
-        xs = [self.inc(x)]
+        # Any frame size: edges repeated up to a multiple of 16 (four poolings) and cropped back,
+        # as `pipeline deblur` does.
+        h, w = x.shape[-2:]
+        ph, pw = -h % 16, -w % 16
+        xp = nn.functional.pad(x, (0, pw, 0, ph), mode="replicate") if ph or pw else x
+        xs = [self.inc(xp)]
         for d in self.downs:
             xs.append(d(nn.functional.max_pool2d(xs[-1], 2)))
         y = xs.pop()
         for u in self.ups:
             y = u(y, xs.pop())
-        return x + self.outc(y)
+        return (xp + self.outc(y))[..., :h, :w]
 
 
 class Shallow(nn.Module):

@@ -103,6 +103,10 @@ def test_bad_settings_and_inputs_are_named(tmp_path, clips):
         pipeline.CodedBlurDataset([FIXTURE], overrides={"transforms.no_such_stage.x": 1})
     with pytest.raises(ValueError, match="on_failure"):
         pipeline.CodedBlurDataset([FIXTURE], on_failure="ignore")
+    missing = tmp_path / "missing.mp4"
+    with pytest.raises(FileNotFoundError) as e:
+        pipeline.CodedBlurDataset([missing])
+    assert str(e.value).count("missing.mp4") == 1, str(e.value)
     bad = tmp_path / "bad.mp4"
     bad.write_bytes(b"not a video")
     with pytest.raises(RuntimeError, match="bad.mp4"):

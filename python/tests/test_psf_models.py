@@ -73,3 +73,10 @@ def test_exported_model_in_torch_matches_deblur(cli, tmp_path):
         with torch.no_grad():
             y = net(torch.from_numpy(x)[None])[0].numpy()
         np.testing.assert_allclose(y, pipeline.deblur(x, model=ROOT / "models" / name), atol=1e-4, err_msg=name)
+    # Sides that are not multiples of 16 (640x360): padded and cropped back like `pipeline deblur`.
+    net = load(tmp_path / "unet16-coded.safetensors").eval()
+    x = np.random.default_rng(1).random((3, 360, 640), dtype=np.float32)
+    with torch.no_grad():
+        y = net(torch.from_numpy(x)[None])[0].numpy()
+    assert y.shape == (3, 360, 640)
+    np.testing.assert_allclose(y, pipeline.deblur(x, model=ROOT / "models" / "unet16-coded"), atol=1e-4)

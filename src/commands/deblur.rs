@@ -83,6 +83,8 @@ pub struct DeblurReport {
     pub audio: &'static str,
     /// Images that could not be read or written (folder input), and why; the rest were done.
     pub failed: Vec<FailedImage>,
+    /// Stopped by SIGINT or SIGTERM after `frames` images, each written whole.
+    pub interrupted: bool,
 }
 
 #[derive(Debug, serde::Serialize)]
@@ -120,6 +122,7 @@ impl DeblurReport {
             frames_per_s: frames as f64 / seconds,
             audio,
             failed: Vec::new(),
+            interrupted: false,
         }
     }
 }
@@ -132,8 +135,6 @@ fn temp_for(path: &Path) -> PathBuf {
     path.with_file_name(crate::io::temp_name(&name, ext.as_deref()))
 }
 
-/// The message of a run stopped by SIGINT or SIGTERM.
-const INTERRUPTED: &str = "interrupted: the unfinished output was removed";
 
 /// Removes temporaries of killed deblur runs in `dir` (this machine, process gone).
 fn remove_stale(dir: &Path) {
@@ -173,7 +174,10 @@ pub fn video(
     let result = (|| -> Result<u64> {
         while let Some(f) = reader.next_frame().map_err(|e| name(input, e))? {
             if crate::signal::interrupted() {
-                return Err(Error::Invalid(format!("{}: {INTERRUPTED}", output.display())));
+                return Err(Error::Interrupted(format!(
+                    "{}: the unfinished video was removed; run the same command again",
+                    output.display()
+                )));
             }
             let rgb = to_rgb8(&f, reader.float);
             let out = run_frame(net, &rgb, w, h, tiling);
@@ -317,13 +321,11 @@ pub fn images(
     let bar = Bar::new(progress, "deblur", "images", Some(files.len() as u64));
     let (mut w, mut h, mut done) = (0, 0, 0);
     let mut failed = Vec::new();
+    let mut interrupted = false;
     for f in &files {
         if crate::signal::interrupted() {
-            return Err(Error::Invalid(format!(
-                "{}: interrupted after {done} of {} images (each written whole)",
-                output.display(),
-                files.len()
-            )));
+            interrupted = true;
+            break;
         }
         let ext = f.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
         let res = read_image(f, &ext).and_then(|(fw, fh, rgb)| {
@@ -351,7 +353,66 @@ pub fn images(
     bar.finish();
     let mut r = DeblurReport::new(input, output, model_name, done, (w, h), None, tiling, t0, "none (images)");
     r.failed = failed;
+    r.interrupted = interrupted;
     Ok(r)
+}
+
+/// What `deblur` writes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum OutKind {
+    Video,
+    Image,
+    Folder,
+}
+
+/// The output's kind, from its extension (or an existing folder), checked against the input's: a
+/// video becomes a video, one image an image or a folder, a folder or glob of images a folder.
+///
+/// # Errors
+/// A usage error naming the output: an unknown extension, or a kind the input cannot become.
+pub fn output_kind(input: &Path, output: &Path) -> Result<OutKind> {
+    let ext = output.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    let out = if output.is_dir() {
+        OutKind::Folder
+    } else {
+        match ext.as_deref() {
+            None => OutKind::Folder,
+            Some(e) if IMAGE_EXTENSIONS.contains(&e) => OutKind::Image,
+            Some(e) if crate::stage::input::VIDEO_EXTS.contains(&e) => OutKind::Video,
+            Some(e) => {
+                return Err(Error::Usage(format!(
+                    "{}: .{e} is neither an image ({}) nor a video ({}) extension; a folder has none",
+                    output.display(),
+                    IMAGE_EXTENSIONS.join(", "),
+                    crate::stage::input::VIDEO_EXTS.join(", ")
+                )))
+            }
+        }
+    };
+    if out == OutKind::Folder && output.is_file() {
+        return Err(Error::Usage(format!("{}: a file, and the output has no extension, so it names a folder", output.display())));
+    }
+    let images = input.is_dir() || input.to_string_lossy().contains('*');
+    let one_image = !images && image_ext(input).is_some();
+    let (what, ok) = match (images, one_image) {
+        (true, _) => ("a folder of images", out == OutKind::Folder),
+        (false, true) => ("an image", out != OutKind::Video),
+        (false, false) => ("a video", out == OutKind::Video),
+    };
+    if !ok {
+        let was = match out {
+            OutKind::Video => "a video",
+            OutKind::Image => "an image",
+            OutKind::Folder => "a folder",
+        };
+        let want = match (images, one_image) {
+            (true, _) => "a folder (no extension)",
+            (false, true) => "an image file or a folder",
+            (false, false) => "a video file (.mp4, .mkv, ...)",
+        };
+        return Err(Error::Usage(format!("{}: the input is {what} and this output names {was}; give {want}", output.display())));
+    }
+    Ok(out)
 }
 
 /// The lower-case extension of `p` when it is one of [`IMAGE_EXTENSIONS`].
@@ -402,6 +463,7 @@ pub fn command(a: DeblurArgs) -> anyhow::Result<()> {
     if same {
         return Err(Error::Usage(format!("{}: the output is the input; choose another output path", out.display())).into());
     }
+    let kind = output_kind(&input, &out)?;
     let (table, origin) = file.load(crate::commands::deblur::DEBLUR_TOML, "pipelines/deblur.toml")?;
     let mut d = crate::commands::deblur::DeblurFile::from_table(table, &origin)?.deblur;
     d.tile = tile.unwrap_or(d.tile);
@@ -411,13 +473,27 @@ pub fn command(a: DeblurArgs) -> anyhow::Result<()> {
     let (net, name) = crate::model::infer::load(model.as_deref())?;
     let tiling = crate::model::infer::Tiling { tile: d.tile, overlap: d.overlap };
     let bar = file.progress;
-    let r = if input.is_dir() || input.to_string_lossy().contains('*') || crate::commands::deblur::image_ext(&input).is_some() {
-        crate::commands::deblur::images(&net, &name, &input, &out, tiling, bar)?
-    } else {
-        crate::commands::deblur::video(&net, &name, &input, &out, tiling, lossless, bar)?
+    if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty() && kind != OutKind::Folder) {
+        if let Some(file) = parent.ancestors().find(|a| a.is_file()) {
+            return Err(Error::Usage(format!("{}: {} is a file, not a folder", out.display(), file.display())).into());
+        }
+        std::fs::create_dir_all(parent).map_err(|e| Error::Io { path: parent.to_path_buf(), cause: e })?;
+    }
+    let r = match kind {
+        OutKind::Video => crate::commands::deblur::video(&net, &name, &input, &out, tiling, lossless, bar)?,
+        OutKind::Folder | OutKind::Image => crate::commands::deblur::images(&net, &name, &input, &out, tiling, bar)?,
     };
-    let rp = if out.is_dir() { out.join("report.json") } else { PathBuf::from(format!("{}.report.json", out.display())) };
+    let rp = if kind == OutKind::Folder { out.join("report.json") } else { PathBuf::from(format!("{}.report.json", out.display())) };
     crate::commands::deblur::write_report(&rp, &r)?;
+    if r.interrupted {
+        return Err(Error::Interrupted(format!(
+            "{}: {} images written whole before the signal ({} records them); run the same command again for the rest",
+            out.display(),
+            r.frames,
+            rp.display()
+        ))
+        .into());
+    }
     eprintln!(
         "{} frames of {}x{} in {:.1} s ({:.2} frames/s) with {} -> {}",
         r.frames,

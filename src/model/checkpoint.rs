@@ -176,20 +176,76 @@ pub fn load_model_bytes(bytes: &[u8], name: &str, device: &Device) -> Result<(Ne
     Ok((net, arch))
 }
 
-/// The `__metadata__` of a safetensors header.
-pub fn read_meta(bytes: &[u8]) -> std::result::Result<serde_json::Value, String> {
+/// The JSON header of a safetensors file.
+fn read_header(bytes: &[u8]) -> std::result::Result<serde_json::Value, String> {
     if bytes.len() < 8 {
         return Err("truncated: no safetensors header".into());
     }
     let n = u64::from_le_bytes(bytes[..8].try_into().expect("8 bytes")) as usize;
-    let header = bytes.get(8..8 + n).ok_or("truncated safetensors header")?;
-    let v: serde_json::Value = serde_json::from_slice(header).map_err(|e| format!("bad safetensors header ({e})"))?;
-    Ok(v["__metadata__"].clone())
+    let header = bytes.get(8..8usize.saturating_add(n)).ok_or("truncated safetensors header")?;
+    serde_json::from_slice(header).map_err(|e| format!("bad safetensors header ({e})"))
 }
 
-/// The `arch` entry of a safetensors header's metadata.
+/// The `__metadata__` of a safetensors header.
+pub fn read_meta(bytes: &[u8]) -> std::result::Result<serde_json::Value, String> {
+    Ok(read_header(bytes)?["__metadata__"].clone())
+}
+
+/// The `arch` entry of a safetensors header's metadata, checked before anything is allocated
+/// for it: within the sizes `pipeline train` accepts, and no larger than the weights the file
+/// declares (a network of width `b` has at least one b-to-b 3x3 convolution, 9 b^2 weights).
 pub fn read_arch(bytes: &[u8]) -> std::result::Result<Arch, String> {
-    let meta = read_meta(bytes)?;
-    let arch = meta["arch"].as_str().ok_or("no `arch` in the metadata: not a pipeline model")?;
-    serde_json::from_str(arch).map_err(|e| format!("unknown arch {arch:?} ({e})"))
+    let header = read_header(bytes)?;
+    let arch = header["__metadata__"]["arch"].as_str().ok_or("no `arch` in the metadata: not a pipeline model")?;
+    let parsed: Arch = serde_json::from_str(arch).map_err(|e| format!("unknown arch {arch:?} ({e})"))?;
+    let (b, max) = match parsed {
+        Arch::Unet { base } => (base, 256),
+        Arch::Shallow { width } => (width, 1024),
+    };
+    if b == 0 || b > max {
+        return Err(format!("the metadata names {arch}, outside 1 to {max} filters"));
+    }
+    let declared: u128 = header
+        .as_object()
+        .map(|o| {
+            o.iter()
+                .filter(|(k, _)| *k != "__metadata__")
+                .filter_map(|(_, t)| t["shape"].as_array().map(|s| s.iter().map(|d| d.as_u64().unwrap_or(0) as u128).product::<u128>()))
+                .sum()
+        })
+        .unwrap_or(0);
+    if 9 * (b as u128) * (b as u128) > declared {
+        return Err(format!("the metadata names {} (at least {} weights) but the file declares {declared}", parsed.name(), 9 * b * b));
+    }
+    Ok(parsed)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A safetensors file of one tensor of `shape` with `arch` in its metadata.
+    fn file(arch: &str, shape: &[usize]) -> Vec<u8> {
+        let n: usize = shape.iter().product();
+        let header = serde_json::json!({
+            "__metadata__": { "arch": arch },
+            "w": { "dtype": "F32", "shape": shape, "data_offsets": [0, 4 * n] },
+        })
+        .to_string();
+        let mut b = (header.len() as u64).to_le_bytes().to_vec();
+        b.extend(header.as_bytes());
+        b.extend(vec![0u8; 4 * n]);
+        b
+    }
+
+    #[test]
+    fn an_architecture_larger_than_its_file_is_refused_before_allocation() {
+        // A 100-byte file claiming a U-Net of base 100000 (it aborted the process before).
+        let e = read_arch(&file(r#"{"type":"unet","base":100000}"#, &[1])).unwrap_err();
+        assert!(e.contains("unet") && e.contains("outside 1 to 256"), "{e}");
+        let e = read_arch(&file(r#"{"type":"shallow","width":200}"#, &[3, 3])).unwrap_err();
+        assert!(e.contains("at least 360000 weights") && e.contains("declares 9"), "{e}");
+        assert_eq!(read_arch(&file(r#"{"type":"shallow","width":2}"#, &[4, 9])).unwrap(), Arch::Shallow { width: 2 });
+        assert_eq!(read_arch(crate::model::infer::DEFAULT_MODEL).unwrap(), Arch::Unet { base: 16 });
+    }
 }

@@ -12,7 +12,7 @@ use serde::{Deserialize, Serialize};
 
 /// Noise sigma: fixed, or drawn per window from [low, high].
 #[derive(Debug, Clone, Copy, Serialize, Deserialize, PartialEq)]
-#[serde(untagged)]
+#[serde(untagged, expecting = "a number or a range [low, high] of two numbers (0 to 255 levels)")]
 pub enum Sigma {
     Fixed(f64),
     Range([f64; 2]),

@@ -148,7 +148,11 @@ fn ctrl_c_and_sigterm_stop_cleanly_and_leave_no_half_written_shard() {
         assert!(st.success());
         let o = child.wait_with_output().unwrap();
         let e = stderr(&o);
-        assert!(!o.status.success() && e.contains("interrupted"), "{sig}: {e}");
+        // Exit 130 (issue 29), a hint how to go on, and a report that says it was interrupted.
+        assert_eq!(o.status.code(), Some(130), "{sig}: {e}");
+        assert!(e.contains("interrupted") && e.contains("run the same command again"), "{sig}: {e}");
+        let r: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("report.json")).expect("a report")).unwrap();
+        assert_eq!(r["interrupted"], true, "{sig}");
         let manifest = std::fs::read_to_string(out.join("manifest.json")).unwrap_or_default();
         let left: Vec<String> =
             files(&out).into_iter().filter(|f| f.ends_with(".tmp") || (f.ends_with(".tar") && !manifest.contains(f.as_str()))).collect();

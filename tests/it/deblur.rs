@@ -90,7 +90,8 @@ fn bad_paths_are_refused_and_the_input_is_untouched() {
     let file = d.join("a-file");
     std::fs::write(&file, "x").unwrap();
     let o = run(&["deblur", input.to_str().unwrap(), "-o", file.join("out.mp4").to_str().unwrap()]);
-    assert!(!o.status.success() && stderr(&o).contains("out.mp4"), "{}", stderr(&o));
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("out.mp4") && stderr(&o).contains("a-file is a file, not a folder"), "{}", stderr(&o));
     let o = run(&["deblur", input.to_str().unwrap(), "-o", d.join("o.mp4").to_str().unwrap(), "--model", file.to_str().unwrap()]);
     assert!(!o.status.success() && stderr(&o).contains("a-file"), "{}", stderr(&o));
     // A typo in the deblur file's keys, and a bad value, are named.
@@ -152,4 +153,42 @@ fn png_jpeg_tiff_and_exr_keep_names_and_formats_and_an_identity_model_keeps_the_
     let (i, o) = (read(src.join("a.jpg")), read(dst.join("a.jpg")));
     let mean = i.iter().zip(&o).map(|(x, y)| (*x as f64 - *y as f64).abs()).sum::<f64>() / i.len() as f64;
     assert!(mean < 2.0, "jpeg re-encode changed pixels by {mean} levels on average");
+}
+
+/// The output's kind follows its extension, checked against the input's, the same way for every
+/// input (issue 31): a mismatch or an unknown extension is a usage error that writes nothing;
+/// parent folders are made for videos as for images; the report lands where `--help` says.
+#[test]
+fn the_output_kind_follows_its_extension_and_a_mismatch_is_a_usage_error() {
+    let d = scratch("deblur_kinds");
+    let frames = d.join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    let rgb: Vec<u8> = (0..32 * 24 * 3).map(|i| (i * 7 % 251) as u8).collect();
+    let mut buf = Vec::new();
+    pipeline::io::png::write_rgb8(&mut buf, 32, 24, &rgb).unwrap();
+    std::fs::write(frames.join("a.png"), &buf).unwrap();
+    let video = clip("deblur-kinds.mp4", &["-i", FIXTURE, "-frames:v", "2", "-vf", "crop=48:32", "-c:v", "libx264", "-preset", "ultrafast"]);
+    let (f, v, img) = (frames.to_str().unwrap(), video.to_str().unwrap(), frames.join("a.png"));
+    for (input, out, says) in [
+        (f, d.join("out.mp4"), "the input is a folder of images"),
+        (f, d.join("out.png"), "the input is a folder of images"),
+        (v, d.join("x.xyz"), ".xyz is neither"),
+        (v, d.join("sharp"), "the input is a video"),
+        (v, d.join("sharp.png"), "the input is a video"),
+        (img.to_str().unwrap(), d.join("one.mkv"), "the input is an image"),
+    ] {
+        let o = run(&["deblur", input, "-o", out.to_str().unwrap(), "--progress", "never"]);
+        assert_eq!(o.status.code(), Some(2), "{}: {}", out.display(), stderr(&o));
+        assert!(stderr(&o).contains(says) && stderr(&o).contains(out.file_name().unwrap().to_str().unwrap()), "{}", stderr(&o));
+        assert!(!out.exists(), "{} was written", out.display());
+    }
+    // A video into folders that do not exist yet: made, as for images; the report beside it.
+    let nested = d.join("new/deeper/sharp.mp4");
+    let o = run(&["deblur", v, "-o", nested.to_str().unwrap(), "--progress", "never"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(nested.exists() && d.join("new/deeper/sharp.mp4.report.json").exists());
+    // A folder output's report is inside it.
+    let o = run(&["deblur", f, "-o", d.join("out").to_str().unwrap(), "--progress", "never"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(d.join("out/a.png").exists() && d.join("out/report.json").exists());
 }

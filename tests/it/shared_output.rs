@@ -287,8 +287,8 @@ fn sigterm_stops_deblur_without_leaving_a_partial_video() {
     let out = d.join("sharp.mp4");
     // The fixture takes many seconds to deblur; the signal lands early.
     let o = terminated(&["deblur", FIXTURE, "-o", out.to_str().unwrap(), "--progress", "never"], 1500);
-    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
-    assert!(stderr(&o).contains("interrupted"), "{}", stderr(&o));
+    assert_eq!(o.status.code(), Some(130), "{}", stderr(&o));
+    assert!(stderr(&o).contains("interrupted") && stderr(&o).contains("run the same command again"), "{}", stderr(&o));
     assert!(!out.exists() && temporaries(&d).is_empty(), "{:?}", files(&d));
 }
 
@@ -314,8 +314,11 @@ fn sigterm_stops_training_with_a_checkpoint_to_resume_from() {
     }
     let o = terminated(&args, 3000);
     let e = stderr(&o);
-    assert_eq!(o.status.code(), Some(1), "{e}");
-    let step: usize = e.split("interrupted after step ").nth(1).and_then(|r| r.split(':').next()).and_then(|n| n.parse().ok()).expect(&e);
+    assert_eq!(o.status.code(), Some(130), "{e}");
+    assert!(e.contains("--resume"), "{e}");
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(run.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["interrupted"], true);
+    let step: usize = e.split("interrupted: after step ").nth(1).and_then(|r| r.split(':').next()).and_then(|n| n.parse().ok()).expect(&e);
     let latest: serde_json::Value = serde_json::from_slice(&std::fs::read(run.join("latest.json")).unwrap()).unwrap();
     assert_eq!(latest["step"], step);
     assert!(run.join(latest["model"].as_str().unwrap()).exists() && temporaries(&run).is_empty());
