@@ -80,3 +80,20 @@ def test_exported_model_in_torch_matches_deblur(cli, tmp_path):
         y = net(torch.from_numpy(x)[None])[0].numpy()
     assert y.shape == (3, 360, 640)
     np.testing.assert_allclose(y, pipeline.deblur(x, model=ROOT / "models" / "unet16-coded"), atol=1e-4)
+
+
+def test_type_stubs_name_every_export_with_the_real_parameters():
+    import ast
+    import inspect
+
+    stub = ast.parse((ROOT / "python" / "pipeline" / "__init__.pyi").read_text())
+    defs = {n.name: n for n in stub.body if isinstance(n, (ast.FunctionDef, ast.ClassDef))}
+    assert set(pipeline.__all__) - {"__version__"} <= set(defs), set(pipeline.__all__) - set(defs)
+
+    def params(node):
+        return [a.arg for a in node.args.args if a.arg != "self"]
+
+    for name in ["psf", "deblur", "to_torch", "load_safetensors"]:
+        assert params(defs[name]) == list(inspect.signature(getattr(pipeline, name)).parameters), name
+    init = next(n for n in defs["CodedBlurDataset"].body if isinstance(n, ast.FunctionDef) and n.name == "__init__")
+    assert params(init) == list(inspect.signature(pipeline.CodedBlurDataset.__init__).parameters)[1:]

@@ -14,4 +14,6 @@ mod path_safety;
 mod psf_cli;
 mod shared_output;
 #[cfg(feature = "train")]
+mod still;
+#[cfg(feature = "train")]
 mod train;
