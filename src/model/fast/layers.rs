@@ -1,0 +1,322 @@
+use super::*;
+
+/// A convolution (no padding beyond `k / 2`, stride 1) with its gradient buffers.
+#[derive(Debug, Clone)]
+pub struct Conv {
+    pub cin: usize,
+    pub cout: usize,
+    pub k: usize,
+    pub w: Vec<f32>,
+    pub b: Option<Vec<f32>>,
+    pub(super) gw: Vec<f32>,
+    pub(super) gb: Vec<f32>,
+    pub(super) x: Option<Arc<T4>>,
+}
+
+impl Conv {
+    pub(super) fn from_burn(c: &Conv2d) -> Conv {
+        let [cout, cin, k, k2] = c.weight.val().dims();
+        assert_eq!(k, k2, "square kernels only");
+        let w = values(c.weight.val());
+        let b = c.bias.as_ref().map(|b| values(b.val()));
+        Conv { cin, cout, k, gw: vec![0.0; w.len()], gb: vec![0.0; b.as_ref().map_or(0, Vec::len)], w, b, x: None }
+    }
+    pub(super) fn write(&self, c: &mut Conv2d) {
+        c.weight = Param::initialized(c.weight.id, tensor(&self.w, [self.cout, self.cin, self.k, self.k], &c.weight.val().device()));
+        if let (Some(p), Some(b)) = (c.bias.as_mut(), &self.b) {
+            *p = Param::initialized(p.id, tensor(b, [self.cout], &p.val().device()));
+        }
+    }
+    pub(super) fn forward(&self, x: &T4) -> T4 {
+        conv_forward(x, &self.w, self.b.as_deref(), self.cout, self.k)
+    }
+    pub(super) fn forward_train(&mut self, x: Arc<T4>) -> T4 {
+        let y = self.forward(&x);
+        self.x = Some(x);
+        y
+    }
+    /// Accumulates the weight (and bias) gradient; returns the input gradient if asked.
+    pub(super) fn backward(&mut self, dy: &T4, need_dx: bool) -> Option<T4> {
+        let x = self.x.take().expect("forward_train before backward");
+        let gw = conv_backward_weight(&x, dy, self.k);
+        self.gw.iter_mut().zip(&gw).for_each(|(a, b)| *a += b);
+        if self.b.is_some() {
+            self.gb.iter_mut().zip(channel_sums(dy)).for_each(|(a, b)| *a += b);
+        }
+        need_dx.then(|| conv_backward_input(dy, &self.w, self.cin, self.k))
+    }
+    pub(super) fn params(&mut self, f: &mut dyn FnMut(&mut [f32], &mut [f32])) {
+        f(&mut self.w, &mut self.gw);
+        if let Some(b) = self.b.as_mut() {
+            f(b, &mut self.gb);
+        }
+    }
+}
+
+/// Conv (no bias) + BatchNorm + (leaky) ReLU, fused.
+#[derive(Debug, Clone)]
+pub struct ConvBnAct {
+    pub(super) conv: Conv,
+    pub(super) gamma: Vec<f32>,
+    pub(super) beta: Vec<f32>,
+    pub(super) rmean: Vec<f32>,
+    pub(super) rvar: Vec<f32>,
+    pub(super) momentum: f32,
+    pub(super) eps: f32,
+    pub(super) slope: f32,
+    pub(super) ggamma: Vec<f32>,
+    pub(super) gbeta: Vec<f32>,
+    pub(super) cache: Option<(T4, Arc<T4>, Vec<f32>)>, // xhat, output, 1 / std
+}
+
+impl ConvBnAct {
+    pub(super) fn from_burn(conv: &Conv2d, bn: &BatchNorm, slope: f32) -> ConvBnAct {
+        let c = bn.gamma.val().dims()[0];
+        ConvBnAct {
+            conv: Conv::from_burn(conv),
+            gamma: values(bn.gamma.val()),
+            beta: values(bn.beta.val()),
+            rmean: values(bn.running_mean.value_sync()),
+            rvar: values(bn.running_var.value_sync()),
+            momentum: bn.momentum as f32,
+            eps: bn.epsilon as f32,
+            slope,
+            ggamma: vec![0.0; c],
+            gbeta: vec![0.0; c],
+            cache: None,
+        }
+    }
+    pub(super) fn write(&self, conv: &mut Conv2d, bn: &mut BatchNorm) {
+        self.conv.write(conv);
+        let dev = bn.gamma.val().device();
+        let c = self.gamma.len();
+        bn.gamma = Param::initialized(bn.gamma.id, tensor(&self.gamma, [c], &dev));
+        bn.beta = Param::initialized(bn.beta.id, tensor(&self.beta, [c], &dev));
+        // `update` files the value under this thread; `value_sync` makes it the value.
+        bn.running_mean.update(tensor(&self.rmean, [c], &dev));
+        bn.running_var.update(tensor(&self.rvar, [c], &dev));
+        let _ = (bn.running_mean.value_sync(), bn.running_var.value_sync());
+    }
+    pub(super) fn act(&self, v: f32) -> f32 {
+        if v > 0.0 {
+            v
+        } else {
+            self.slope * v
+        }
+    }
+    /// Inference: BatchNorm with its running statistics.
+    pub(super) fn forward(&self, x: &T4) -> T4 {
+        let mut z = self.conv.forward(x);
+        let hw = z.hw();
+        for s in 0..z.n {
+            for ch in 0..z.c {
+                let scale = self.gamma[ch] / (self.rvar[ch] + self.eps).sqrt();
+                let shift = self.beta[ch] - self.rmean[ch] * scale;
+                for v in &mut z.d[(s * z.c + ch) * hw..][..hw] {
+                    *v = self.act(*v * scale + shift);
+                }
+            }
+        }
+        z
+    }
+    /// Training: BatchNorm with the batch's statistics (biased variance, as burn), running
+    /// statistics updated with the momentum.
+    pub(super) fn forward_train(&mut self, x: Arc<T4>) -> Arc<T4> {
+        let z = self.conv.forward_train(x);
+        let (n, c, hw) = (z.n, z.c, z.hw());
+        let m = (n * hw) as f64;
+        let mut xhat = T4::zeros(n, c, z.h, z.w);
+        let mut out = T4::zeros(n, c, z.h, z.w);
+        let (gamma, beta, eps, slope) = (&self.gamma, &self.beta, self.eps as f64, self.slope);
+        let stats = per_channel(c, hw, [&mut xhat, &mut out], |ch, [mut xhs, mut os]| {
+            let zp = |s: usize| &z.d[(s * c + ch) * hw..][..hw];
+            let mean = (0..n).map(|s| zp(s).iter().map(|&v| v as f64).sum::<f64>()).sum::<f64>() / m;
+            let var = (0..n).map(|s| zp(s).iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>()).sum::<f64>() / m;
+            let inv = 1.0 / (var + eps).sqrt();
+            let (g, b, meanf, invf) = (gamma[ch], beta[ch], mean as f32, inv as f32);
+            for s in 0..n {
+                let xh = &mut *xhs[s];
+                for (d, &v) in xh.iter_mut().zip(zp(s)) {
+                    *d = (v - meanf) * invf;
+                }
+                let o = &mut *os[s];
+                for (d, &v) in o.iter_mut().zip(xh.iter()) {
+                    let p = g * v + b;
+                    *d = if p > 0.0 { p } else { slope * p };
+                }
+            }
+            (mean as f32, var as f32, inv as f32)
+        });
+        let mo = self.momentum;
+        let mut inv = Vec::with_capacity(c);
+        for (ch, (mean, var, i)) in stats.into_iter().enumerate() {
+            self.rmean[ch] = self.rmean[ch] * (1.0 - mo) + mean * mo;
+            self.rvar[ch] = self.rvar[ch] * (1.0 - mo) + var * mo;
+            inv.push(i);
+        }
+        let out = Arc::new(out);
+        self.cache = Some((xhat, out.clone(), inv));
+        out
+    }
+    pub(super) fn backward(&mut self, dout: &T4, need_dx: bool) -> Option<T4> {
+        let (xhat, out, inv) = self.cache.take().expect("forward_train before backward");
+        let (n, c, hw) = (dout.n, dout.c, dout.hw());
+        let m = (n * hw) as f64;
+        let mut dz = T4::zeros(n, c, dout.h, dout.w);
+        let (gamma, slope) = (&self.gamma, self.slope);
+        let sums = per_channel(c, hw, [&mut dz], |ch, [mut dps]| {
+            let at = |s: usize| (s * c + ch) * hw;
+            // dpre = dout * act'(pre); act'(pre) follows the sign of the output.
+            let mut sb = 0.0f64;
+            let mut sg = 0.0f64;
+            for s in 0..n {
+                let dp = &mut *dps[s];
+                let (o, d, xh) = (&out.d[at(s)..][..hw], &dout.d[at(s)..][..hw], &xhat.d[at(s)..][..hw]);
+                let mut b = 0.0f64;
+                let mut g = 0.0f64;
+                for i in 0..hw {
+                    let v = if o[i] > 0.0 { d[i] } else { slope * d[i] };
+                    dp[i] = v;
+                    b += v as f64;
+                    g += (v * xh[i]) as f64;
+                }
+                sb += b;
+                sg += g;
+            }
+            let k = gamma[ch] * inv[ch];
+            let (mb, mg) = ((sb / m) as f32, (sg / m) as f32);
+            for s in 0..n {
+                let dp = &mut *dps[s];
+                let xh = &xhat.d[at(s)..][..hw];
+                for i in 0..hw {
+                    dp[i] = k * (dp[i] - mb - xh[i] * mg);
+                }
+            }
+            (sg as f32, sb as f32)
+        });
+        for (ch, (g, b)) in sums.into_iter().enumerate() {
+            self.ggamma[ch] += g;
+            self.gbeta[ch] += b;
+        }
+        self.conv.backward(&dz, need_dx)
+    }
+    pub(super) fn params(&mut self, f: &mut dyn FnMut(&mut [f32], &mut [f32])) {
+        self.conv.params(f);
+        f(&mut self.gamma, &mut self.ggamma);
+        f(&mut self.beta, &mut self.gbeta);
+    }
+}
+
+/// Two ConvBnAct with LeakyReLU 0.01.
+#[derive(Debug, Clone)]
+pub(super) struct Double {
+    pub(super) a: ConvBnAct,
+    pub(super) b: ConvBnAct,
+}
+
+impl Double {
+    pub(super) fn from_burn(d: &crate::model::DoubleConv) -> Double {
+        Double { a: ConvBnAct::from_burn(&d.a.conv, &d.a.bn, 0.01), b: ConvBnAct::from_burn(&d.b.conv, &d.b.bn, 0.01) }
+    }
+    pub(super) fn write(&self, d: &mut crate::model::DoubleConv) {
+        self.a.write(&mut d.a.conv, &mut d.a.bn);
+        self.b.write(&mut d.b.conv, &mut d.b.bn);
+    }
+    pub(super) fn forward(&self, x: &T4) -> T4 {
+        self.b.forward(&self.a.forward(x))
+    }
+    pub(super) fn forward_train(&mut self, x: Arc<T4>) -> Arc<T4> {
+        let y = self.a.forward_train(x);
+        self.b.forward_train(y)
+    }
+    pub(super) fn backward(&mut self, d: &T4, need_dx: bool) -> Option<T4> {
+        let d = self.b.backward(d, true).expect("dx");
+        self.a.backward(&d, need_dx)
+    }
+    pub(super) fn params(&mut self, f: &mut dyn FnMut(&mut [f32], &mut [f32])) {
+        self.a.params(f);
+        self.b.params(f);
+    }
+}
+
+/// The 2x2 stride-2 transposed convolution with bias: `y[co, 2i+a, 2j+b] = sum_ci
+/// w[ci, co, a, b] x[ci, i, j] + bias[co]`, a matrix product plus a shuffle.
+#[derive(Debug, Clone)]
+pub(super) struct UpConv {
+    pub(super) cin: usize,
+    pub(super) cout: usize,
+    pub(super) w: Vec<f32>,
+    pub(super) b: Vec<f32>,
+    pub(super) gw: Vec<f32>,
+    pub(super) gb: Vec<f32>,
+    pub(super) x: Option<Arc<T4>>,
+}
+
+impl UpConv {
+    pub(super) fn from_burn(c: &ConvTranspose2d) -> UpConv {
+        let [cin, cout, kh, kw] = c.weight.val().dims();
+        assert!(kh == 2 && kw == 2 && c.stride == [2, 2], "2x2 stride-2 transposed convolutions only");
+        let w = values(c.weight.val());
+        let b = c.bias.as_ref().map_or(vec![0.0; cout], |b| values(b.val()));
+        UpConv { cin, cout, gw: vec![0.0; w.len()], gb: vec![0.0; cout], w, b, x: None }
+    }
+    pub(super) fn write(&self, c: &mut ConvTranspose2d) {
+        c.weight = Param::initialized(c.weight.id, tensor(&self.w, [self.cin, self.cout, 2, 2], &c.weight.val().device()));
+        if let Some(p) = c.bias.as_mut() {
+            *p = Param::initialized(p.id, tensor(&self.b, [self.cout], &p.val().device()));
+        }
+    }
+    pub(super) fn forward(&self, x: &T4) -> T4 {
+        upconv_forward(x, &self.w, &self.b, self.cout)
+    }
+    pub(super) fn forward_train(&mut self, x: Arc<T4>) -> T4 {
+        let y = self.forward(&x);
+        self.x = Some(x);
+        y
+    }
+    pub(super) fn backward(&mut self, dy: &T4) -> T4 {
+        let x = self.x.take().expect("forward_train before backward");
+        let (n, cin, h, w, cout) = (x.n, x.c, x.h, x.w, self.cout);
+        let (c4, hw) = (cout * 4, h * w);
+        // dT[(co, a, b), (i, j)] = dy[co, 2i + a, 2j + b], per sample.
+        let parts: Vec<(Vec<f32>, Vec<f32>)> = (0..n)
+            .into_par_iter()
+            .map(|s| {
+                let dys = dy.sample(s);
+                let mut dt = vec![0.0f32; c4 * hw];
+                for co in 0..cout {
+                    for q in 0..4 {
+                        let (a, b) = (q / 2, q % 2);
+                        let row = &mut dt[(co * 4 + q) * hw..][..hw];
+                        for i in 0..h {
+                            for j in 0..w {
+                                row[i * w + j] = dys[co * 4 * hw + (2 * i + a) * 2 * w + 2 * j + b];
+                            }
+                        }
+                    }
+                }
+                let mut dx = vec![0.0f32; cin * hw];
+                let mut gw = vec![0.0f32; cin * c4];
+                // dx[cin, hw] = w[cin, c4] * dT[c4, hw]
+                matmul([cin, hw, c4], (&mut dx, hw), false, (&self.w, c4, 1), (&dt, hw, 1));
+                // gw[cin, c4] = x[cin, hw] * dT^T[hw, c4]
+                matmul([cin, c4, hw], (&mut gw, c4), false, (x.sample(s), hw, 1), (&dt, 1, hw));
+                (dx, gw)
+            })
+            .collect();
+        let mut dx = Vec::with_capacity(n * cin * hw);
+        let mut gws = Vec::with_capacity(n);
+        for (d, g) in parts {
+            dx.extend_from_slice(&d);
+            gws.push(g);
+        }
+        let gw = sum_in_order(gws);
+        self.gw.iter_mut().zip(&gw).for_each(|(a, b)| *a += b);
+        self.gb.iter_mut().zip(channel_sums(dy)).for_each(|(a, b)| *a += b);
+        T4::new(n, cin, h, w, dx)
+    }
+    pub(super) fn params(&mut self, f: &mut dyn FnMut(&mut [f32], &mut [f32])) {
+        f(&mut self.w, &mut self.gw);
+        f(&mut self.b, &mut self.gb);
+    }
+}

@@ -1,0 +1,274 @@
+use super::*;
+
+#[derive(Debug, Clone)]
+pub(super) struct Down {
+    pub(super) conv: Double,
+    pub(super) idx: Vec<u8>,
+    pub(super) hw_in: (usize, usize),
+}
+
+#[derive(Debug, Clone)]
+pub(super) struct Up {
+    pub(super) up: UpConv,
+    pub(super) conv: Double,
+    pub(super) skip: usize,
+}
+
+#[derive(Debug, Clone)]
+pub(super) struct FUnet {
+    pub(super) inc: Double,
+    pub(super) downs: Vec<Down>,
+    pub(super) ups: Vec<Up>,
+    pub(super) outc: Conv,
+}
+
+#[derive(Debug, Clone)]
+pub(super) struct FShallow {
+    pub(super) blocks: Vec<ConvBnAct>,
+    pub(super) out: Conv,
+}
+
+#[derive(Debug, Clone)]
+pub(super) enum Kind {
+    Unet(FUnet),
+    Shallow(FShallow),
+}
+
+/// One of the two networks with its weights as plain vectors: forward (inference or training)
+/// and backward on the CPU.
+#[derive(Debug, Clone)]
+pub struct FastNet {
+    pub(super) kind: Kind,
+    /// Crop of the padded output during training (U-Net inputs padded to a multiple of 16).
+    pub(super) crop: Option<(usize, usize)>,
+}
+
+impl FastNet {
+    /// The weights and running statistics of a burn network.
+    pub fn from_net(net: &Net) -> FastNet {
+        let kind = match net {
+            Net::Unet(u) => Kind::Unet(FUnet {
+                inc: Double::from_burn(&u.inc),
+                downs: [&u.down1, &u.down2, &u.down3, &u.down4]
+                    .iter()
+                    .map(|d| Down { conv: Double::from_burn(&d.conv), idx: Vec::new(), hw_in: (0, 0) })
+                    .collect(),
+                ups: [&u.up1, &u.up2, &u.up3, &u.up4]
+                    .iter()
+                    .map(|up| {
+                        let upc = UpConv::from_burn(&up.up);
+                        let conv = Double::from_burn(&up.conv);
+                        let skip = conv.a.conv.cin - upc.cout;
+                        Up { up: upc, conv, skip }
+                    })
+                    .collect(),
+                outc: Conv::from_burn(&u.outc),
+            }),
+            Net::Shallow(s) => Kind::Shallow(FShallow {
+                blocks: s.blocks.iter().map(|b| ConvBnAct::from_burn(&b.conv, &b.bn, 0.0)).collect(),
+                out: Conv::from_burn(&s.out),
+            }),
+        };
+        FastNet { kind, crop: None }
+    }
+
+    /// `net` with this network's weights and running statistics (parameter ids kept).
+    pub fn write_into(&self, mut net: Net) -> Net {
+        match (&self.kind, &mut net) {
+            (Kind::Unet(f), Net::Unet(u)) => {
+                f.inc.write(&mut u.inc);
+                for (d, b) in f.downs.iter().zip([&mut u.down1, &mut u.down2, &mut u.down3, &mut u.down4]) {
+                    d.conv.write(&mut b.conv);
+                }
+                for (d, b) in f.ups.iter().zip([&mut u.up1, &mut u.up2, &mut u.up3, &mut u.up4]) {
+                    d.up.write(&mut b.up);
+                    d.conv.write(&mut b.conv);
+                }
+                f.outc.write(&mut u.outc);
+            }
+            (Kind::Shallow(f), Net::Shallow(s)) => {
+                for (a, b) in f.blocks.iter().zip(s.blocks.iter_mut()) {
+                    a.write(&mut b.conv, &mut b.bn);
+                }
+                f.out.write(&mut s.out);
+            }
+            _ => panic!("write_into: a network of another architecture"),
+        }
+        net
+    }
+
+    /// Inference (BatchNorm with running statistics): `[n, 3, h, w]` in, the same out.
+    pub fn forward(&self, x: &T4) -> T4 {
+        match &self.kind {
+            Kind::Shallow(m) => {
+                let mut y = m.blocks[0].forward(x);
+                for b in &m.blocks[1..] {
+                    y = b.forward(&y);
+                }
+                let mut r = m.out.forward(&y);
+                add_into(&mut r, x);
+                r
+            }
+            Kind::Unet(m) => {
+                let (h, w) = (x.h.div_ceil(16) * 16, x.w.div_ceil(16) * 16);
+                let xp = if (h, w) != (x.h, x.w) { pad_edge(x, h, w) } else { x.clone() };
+                let mut xs = vec![m.inc.forward(&xp)];
+                drop(xp);
+                for d in &m.downs {
+                    let (p, _) = maxpool(xs.last().expect("level"));
+                    xs.push(d.conv.forward(&p));
+                }
+                let mut y = xs.pop().expect("bottom");
+                for u in &m.ups {
+                    let skip = xs.pop().expect("skip");
+                    let upy = u.up.forward(&y);
+                    y = u.conv.forward(&cat(&skip, &upy));
+                }
+                let r = m.outc.forward(&y);
+                let mut r = if (h, w) != (x.h, x.w) { crop(&r, x.h, x.w) } else { r };
+                add_into(&mut r, x);
+                r
+            }
+        }
+    }
+
+    /// Training forward (batch statistics, running statistics updated), keeping what the
+    /// backward pass needs.
+    pub fn forward_train(&mut self, x: &T4) -> T4 {
+        match &mut self.kind {
+            Kind::Shallow(m) => {
+                let mut y = Arc::new(x.clone());
+                for b in &mut m.blocks {
+                    y = b.forward_train(y);
+                }
+                let mut r = m.out.forward_train(y);
+                add_into(&mut r, x);
+                r
+            }
+            Kind::Unet(m) => {
+                let (h, w) = (x.h.div_ceil(16) * 16, x.w.div_ceil(16) * 16);
+                self.crop = ((h, w) != (x.h, x.w)).then_some((x.h, x.w));
+                let xp = Arc::new(if self.crop.is_some() { pad_edge(x, h, w) } else { x.clone() });
+                let mut xs = vec![m.inc.forward_train(xp)];
+                for d in &mut m.downs {
+                    let last = xs.last().expect("level");
+                    d.hw_in = (last.h, last.w);
+                    let (p, idx) = maxpool(last);
+                    d.idx = idx;
+                    xs.push(d.conv.forward_train(Arc::new(p)));
+                }
+                let mut y = xs.pop().expect("bottom");
+                for u in &mut m.ups {
+                    let skip = xs.pop().expect("skip");
+                    let upy = u.up.forward_train(y);
+                    y = u.conv.forward_train(Arc::new(cat(&skip, &upy)));
+                }
+                let r = m.outc.forward_train(y);
+                let mut r = if self.crop.is_some() { crop(&r, x.h, x.w) } else { r };
+                add_into(&mut r, x);
+                r
+            }
+        }
+    }
+
+    /// Accumulates parameter gradients from the gradient of the output of the last
+    /// [`forward_train`](Self::forward_train).
+    pub fn backward(&mut self, dout: &T4) {
+        match &mut self.kind {
+            Kind::Shallow(m) => {
+                let mut d = m.out.backward(dout, true).expect("dx");
+                let last = m.blocks.len() - 1;
+                for (i, b) in m.blocks.iter_mut().enumerate().rev() {
+                    match b.backward(&d, i != 0) {
+                        Some(next) => d = next,
+                        None => debug_assert_eq!(i, 0, "{last}"),
+                    }
+                }
+            }
+            Kind::Unet(m) => {
+                let d = match self.crop {
+                    Some(_) => {
+                        let x = m.outc.x.as_ref().expect("forward_train before backward");
+                        pad_zero(dout, x.h, x.w)
+                    }
+                    None => dout.clone(),
+                };
+                let mut d = m.outc.backward(&d, true).expect("dx");
+                let mut skips = Vec::new();
+                for u in m.ups.iter_mut().rev() {
+                    let dcat = u.conv.backward(&d, true).expect("dx");
+                    let (dskip, dup) = split(&dcat, u.skip);
+                    d = u.up.backward(&dup);
+                    skips.push(dskip);
+                }
+                // skips: gradients of x1, x2, x3, x4 (in that order); d: of the bottom x5.
+                for (dn, mut s) in m.downs.iter_mut().rev().zip(skips.into_iter().rev()) {
+                    let dp = dn.conv.backward(&d, true).expect("dx");
+                    let (h, w) = dn.hw_in;
+                    add_into(&mut s, &maxpool_backward(&dp, &dn.idx, h, w));
+                    d = s;
+                }
+                m.inc.backward(&d, false);
+            }
+        }
+    }
+
+    /// Every (parameter, gradient) pair, in a fixed order.
+    pub fn params(&mut self, f: &mut dyn FnMut(&mut [f32], &mut [f32])) {
+        match &mut self.kind {
+            Kind::Shallow(m) => {
+                m.blocks.iter_mut().for_each(|b| b.params(f));
+                m.out.params(f);
+            }
+            Kind::Unet(m) => {
+                m.inc.params(f);
+                m.downs.iter_mut().for_each(|d| d.conv.params(f));
+                for u in &mut m.ups {
+                    u.up.params(f);
+                    u.conv.params(f);
+                }
+                m.outc.params(f);
+            }
+        }
+    }
+
+    /// Every BatchNorm layer, in a fixed order.
+    pub(super) fn bn_layers(&mut self, f: &mut dyn FnMut(&mut ConvBnAct)) {
+        match &mut self.kind {
+            Kind::Shallow(m) => m.blocks.iter_mut().for_each(f),
+            Kind::Unet(m) => {
+                let double = |d: &mut Double, f: &mut dyn FnMut(&mut ConvBnAct)| {
+                    f(&mut d.a);
+                    f(&mut d.b);
+                };
+                double(&mut m.inc, f);
+                m.downs.iter_mut().for_each(|d| double(&mut d.conv, f));
+                m.ups.iter_mut().for_each(|u| double(&mut u.conv, f));
+            }
+        }
+    }
+
+    /// Replaces every BatchNorm layer's running statistics by the exact mean, over `batches`,
+    /// of the batch statistics training normalises with ("precise BatchNorm"). The running
+    /// averages training keeps (momentum 0.1) remember about ten batches of eight patches, so
+    /// at inference they carry a per-channel offset that shows as a colour cast on smooth
+    /// regions; the mean over many batches does not. Weights are untouched.
+    pub fn recalibrate_bn(&mut self, batches: &[T4]) {
+        let mut old = Vec::new();
+        self.bn_layers(&mut |l| old.push(l.momentum));
+        for (k, x) in batches.iter().enumerate() {
+            // Momentum 1 / (k + 1) makes the running value the mean of the k + 1 batches so far.
+            self.bn_layers(&mut |l| l.momentum = 1.0 / (k + 1) as f32);
+            let _ = self.forward_train(x);
+        }
+        let mut it = old.into_iter();
+        self.bn_layers(&mut |l| {
+            l.momentum = it.next().expect("one momentum per layer");
+            l.cache = None;
+        });
+    }
+
+    pub fn zero_grad(&mut self) {
+        self.params(&mut |_, g| g.fill(0.0));
+    }
+}

@@ -1,0 +1,263 @@
+//! Each operation against burn's own implementation on the same inputs (forward and both
+//! gradients), then whole networks and training runs.
+use super::*;
+use burn::module::Module;
+use burn::nn::conv::{Conv2dConfig, ConvTranspose2dConfig};
+use burn::nn::PaddingConfig2d;
+use burn::optim::GradientsParams;
+use burn::tensor::Device;
+
+fn ad() -> Device {
+    Device::flex().autodiff()
+}
+
+fn rand(n: usize, c: usize, h: usize, w: usize, seed: u64) -> T4 {
+    let v = (0..n * c * h * w).map(|i| crate::rng::unit(crate::rng::hash(&[seed, i as u64])) as f32 * 2.0 - 1.0).collect();
+    T4::new(n, c, h, w, v)
+}
+
+/// Largest |a - b| relative to the largest |b| (1e-30 floor).
+fn rel(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    let scale = b.iter().fold(0.0f32, |m, v| m.max(v.abs())).max(1e-30);
+    a.iter().zip(b).fold(0.0f32, |m, (x, y)| m.max((x - y).abs())) / scale
+}
+
+fn vecf<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.into_data().try_to_vec::<f32>().unwrap()
+}
+
+/// burn: y = conv(x), loss = sum(y * g); returns y, dx, dw, db.
+fn burn_conv(conv: &Conv2d, x: &T4, g: &T4) -> (Vec<f32>, Vec<f32>, Vec<f32>, Option<Vec<f32>>) {
+    let xt = x.to_tensor(&ad()).require_grad();
+    let y = conv.forward(xt.clone());
+    let loss = (y.clone() * g.to_tensor(&ad())).sum();
+    let grads = loss.backward();
+    let dx = vecf(xt.grad(&grads).unwrap());
+    let gp = GradientsParams::from_grads(grads, conv);
+    let dw = vecf(gp.get::<4>(conv.weight.id).unwrap());
+    let db = conv.bias.as_ref().map(|b| vecf(gp.get::<1>(b.id).unwrap()));
+    (vecf(y), dx, dw, db)
+}
+
+#[test]
+fn convolution_matches_burn_forward_and_both_gradients() {
+    // (batch, cin, cout, h, w, kernel, bias): odd sizes, batch 1 and 5.
+    for (i, &(n, cin, cout, h, w, k, bias)) in
+        [(1, 3, 16, 17, 23, 3, false), (5, 32, 16, 9, 14, 3, false), (2, 16, 3, 12, 7, 1, true), (1, 8, 3, 5, 6, 3, true)]
+            .iter()
+            .enumerate()
+    {
+        let mut cfg = Conv2dConfig::new([cin, cout], [k, k]).with_bias(bias);
+        if k == 3 {
+            cfg = cfg.with_padding(PaddingConfig2d::Explicit(1, 1, 1, 1));
+        }
+        let conv = cfg.init(&ad());
+        let x = rand(n, cin, h, w, 1 + i as u64);
+        let g = rand(n, cout, h, w, 100 + i as u64);
+        let (y, dx, dw, db) = burn_conv(&conv, &x, &g);
+        let mut f = Conv::from_burn(&conv);
+        let fy = f.forward_train(Arc::new(x.clone()));
+        let fdx = f.backward(&g, true).unwrap();
+        assert!(rel(&fy.d, &y) < 1e-4, "case {i} forward {}", rel(&fy.d, &y));
+        assert!(rel(&fdx.d, &dx) < 1e-4, "case {i} input gradient {}", rel(&fdx.d, &dx));
+        assert!(rel(&f.gw, &dw) < 1e-4, "case {i} weight gradient {}", rel(&f.gw, &dw));
+        if let Some(db) = db {
+            assert!(rel(&f.gb, &db) < 1e-4, "case {i} bias gradient");
+        }
+        // The check catches a wrong gradient: one weight's gradient off by 1e-3 of the largest.
+        let scale = dw.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        f.gw[dw.len() / 2] += 1e-3 * scale;
+        assert!(rel(&f.gw, &dw) > 1e-4, "case {i}: a perturbed weight gradient passes ({})", rel(&f.gw, &dw));
+    }
+}
+
+#[test]
+fn transposed_convolution_matches_burn() {
+    for (i, &(n, cin, cout, h, w)) in [(1, 8, 8, 5, 7), (3, 16, 4, 4, 4)].iter().enumerate() {
+        let up = ConvTranspose2dConfig::new([cin, cout], [2, 2]).with_stride([2, 2]).init(&ad());
+        let x = rand(n, cin, h, w, 7 + i as u64);
+        let g = rand(n, cout, 2 * h, 2 * w, 70 + i as u64);
+        let xt = x.to_tensor(&ad()).require_grad();
+        let y = up.forward(xt.clone());
+        let grads = (y.clone() * g.to_tensor(&ad())).sum().backward();
+        let dx = vecf(xt.grad(&grads).unwrap());
+        let gp = GradientsParams::from_grads(grads, &up);
+        let (dw, db) = (vecf(gp.get::<4>(up.weight.id).unwrap()), vecf(gp.get::<1>(up.bias.as_ref().unwrap().id).unwrap()));
+        let mut f = UpConv::from_burn(&up);
+        let fy = f.forward_train(Arc::new(x));
+        let fdx = f.backward(&g);
+        assert!(rel(&fy.d, &vecf(y)) < 1e-4, "case {i} forward");
+        assert!(rel(&fdx.d, &dx) < 1e-4, "case {i} input gradient");
+        assert!(rel(&f.gw, &dw) < 1e-4, "case {i} weight gradient");
+        assert!(rel(&f.gb, &db) < 1e-4, "case {i} bias gradient");
+    }
+}
+
+/// Every parameter gradient of a whole network against burn's autodiff.
+fn network_gradients_match(arch: crate::model::Arch, n: usize, h: usize, w: usize) {
+    let net = Net::seeded(arch, &ad(), 11);
+    let x = rand(n, 3, h, w, 5);
+    let y = rand(n, 3, h, w, 6);
+    // burn
+    let out = net.forward(x.to_tensor(&ad()));
+    let loss =
+        burn::nn::loss::HuberLossConfig::new(0.02).init().forward(out.clone(), y.to_tensor(&ad()), burn::nn::loss::Reduction::Mean);
+    let gp = GradientsParams::from_grads(loss.backward(), &net);
+    // ours
+    let mut f = FastNet::from_net(&net);
+    let fo = f.forward_train(&x);
+    assert!(rel(&fo.d, &vecf(out)) < 1e-4, "{arch:?} forward");
+    let (fl, d) = huber(&fo, &y, 0.02);
+    assert!((fl - loss.into_scalar::<f32>() as f64).abs() < 1e-6 * fl.abs().max(1e-3), "{arch:?} loss");
+    f.backward(&d);
+    let mut ours = Vec::new();
+    f.params(&mut |_, g| ours.push(g.to_vec()));
+    // burn's gradients in the same order: visit the module's trainable parameters.
+    struct Grads<'a>(&'a GradientsParams, Vec<Vec<f32>>);
+    impl burn::module::ModuleVisitor for Grads<'_> {
+        fn visit_float<const D: usize>(&mut self, p: &burn::module::Param<Tensor<D>>) {
+            if let Some(g) = self.0.get::<D>(p.id) {
+                self.1.push(g.into_data().try_to_vec::<f32>().unwrap());
+            }
+        }
+    }
+    let mut theirs = Grads(&gp, Vec::new());
+    net.visit(&mut theirs);
+    // burn visits conv weight before its BatchNorm: the same order as ours.
+    assert_eq!(ours.len(), theirs.1.len(), "{arch:?} parameter count");
+    for (i, (a, b)) in ours.iter().zip(&theirs.1).enumerate() {
+        assert!(rel(a, b) < 1e-3, "{arch:?} parameter {i} ({} values): {}", a.len(), rel(a, b));
+    }
+}
+
+#[test]
+fn shallow_gradients_match_burn() {
+    network_gradients_match(crate::model::Arch::Shallow { width: 8 }, 2, 13, 11);
+}
+
+#[test]
+fn unet_gradients_match_burn_including_padding() {
+    network_gradients_match(crate::model::Arch::Unet { base: 4 }, 2, 32, 32);
+    network_gradients_match(crate::model::Arch::Unet { base: 4 }, 1, 20, 35);
+}
+
+#[test]
+fn inference_matches_burn_and_round_trips_through_the_module() {
+    for arch in [crate::model::Arch::Unet { base: 4 }, crate::model::Arch::Shallow { width: 6 }] {
+        let dev = Device::flex();
+        let mut f = FastNet::from_net(&Net::seeded(arch, &dev, 3));
+        // A few training steps move the weights and running statistics off their init.
+        let mut adam = Adam::default();
+        for s in 0..3 {
+            f.zero_grad();
+            let o = f.forward_train(&rand(2, 3, 16, 16, s));
+            let (_, d) = huber(&o, &rand(2, 3, 16, 16, 50 + s), 0.02);
+            f.backward(&d);
+            adam.step(&mut f, 1e-2, Adam::BURN_EPS);
+        }
+        let net = f.write_into(Net::seeded(arch, &dev, 4));
+        let x = rand(1, 3, 21, 30, 9);
+        let theirs = vecf(net.forward(x.to_tensor(&dev)));
+        let e = rel(&f.forward(&x).d, &theirs);
+        assert!(e < 1e-4, "{arch:?}: {e}");
+        let back = FastNet::from_net(&net);
+        assert_eq!(back.forward(&x).d, f.forward(&x).d, "{arch:?} round trip");
+    }
+}
+
+#[test]
+fn recalibrated_batchnorm_makes_inference_equal_training_mode_on_that_batch() {
+    for arch in [crate::model::Arch::Unet { base: 4 }, crate::model::Arch::Shallow { width: 6 }] {
+        let dev = Device::flex();
+        // Seeded weights (the last layer not zeroed, so BatchNorm shows in the output).
+        let mut f = FastNet::from_net(&Net::seeded(arch, &dev, 5));
+        let (a, b) = (rand(4, 3, 16, 16, 61), rand(4, 3, 16, 16, 62));
+        let train_a = f.clone().forward_train(&a);
+        let worst = |p: &T4, q: &T4| p.d.iter().zip(&q.d).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+        // The initial running statistics (mean 0, variance 1) are far from the batch's.
+        assert!(worst(&f.forward(&a), &train_a) > 1e-2, "{arch:?}: the test needs stats that differ");
+        // Over one batch (or the same batch twice) the running statistics are that batch's.
+        f.recalibrate_bn(std::slice::from_ref(&a));
+        assert!(worst(&f.forward(&a), &train_a) < 1e-4, "{arch:?}: {}", worst(&f.forward(&a), &train_a));
+        f.recalibrate_bn(&[a.clone(), a.clone()]);
+        assert!(worst(&f.forward(&a), &train_a) < 1e-4, "{arch:?}: twice");
+        // Over two batches they are the mean of both, not the last one's (momentum 0.1 would
+        // leave 0.9 of the first batch's).
+        f.recalibrate_bn(&[a.clone(), b.clone()]);
+        let mut g = FastNet::from_net(&Net::seeded(arch, &dev, 5));
+        g.recalibrate_bn(&[b.clone(), a.clone()]);
+        assert!(worst(&f.forward(&a), &g.forward(&a)) < 1e-4, "{arch:?}: the order of the batches matters");
+        assert!(worst(&f.forward(&a), &train_a) > 1e-3, "{arch:?}: b left no trace");
+        // The momentum is restored: a training step moves the statistics by 0.1 of the way.
+        let mut rm = Vec::new();
+        f.bn_layers(&mut |l| rm.push((l.momentum, l.rmean[0])));
+        assert!(rm.iter().all(|&(m, _)| (m - 0.1).abs() < 1e-6), "{rm:?}");
+    }
+}
+
+/// The initial network of the training tests: built once per test, so that burn's shared
+/// random generator (drawn lazily by other tests' modules) cannot differ between two runs.
+fn initial(arch: crate::model::Arch, dev: &Device) -> Net {
+    Net::seeded(arch, dev, 21).zero_last_layer(dev)
+}
+
+fn train_steps(mut f: FastNet, steps: usize) -> (Vec<f64>, FastNet) {
+    let mut adam = Adam::default();
+    let mut losses = Vec::new();
+    for s in 0..steps as u64 {
+        let (x, y) = (rand(4, 3, 16, 16, 200 + s % 3), rand(4, 3, 16, 16, 300 + s % 3));
+        losses.push(train_step(&mut f, &mut adam, &x, &y, 1e-3, 0.02, 1e-8));
+    }
+    (losses, f)
+}
+
+#[test]
+fn twenty_steps_give_burns_loss_curve() {
+    use burn::optim::AdamConfig;
+    for arch in [crate::model::Arch::Shallow { width: 4 }, crate::model::Arch::Unet { base: 4 }] {
+        let mut net = initial(arch, &ad());
+        let (ours, _) = train_steps(FastNet::from_net(&net), 20);
+        let mut optim = AdamConfig::new().with_epsilon(1e-8).init();
+        let huber_b = burn::nn::loss::HuberLossConfig::new(0.02).init();
+        for (s, l) in ours.iter().enumerate() {
+            let s = s as u64;
+            let (x, y) = (rand(4, 3, 16, 16, 200 + s % 3), rand(4, 3, 16, 16, 300 + s % 3));
+            let loss = huber_b.forward(net.forward(x.to_tensor(&ad())), y.to_tensor(&ad()), burn::nn::loss::Reduction::Mean);
+            let lb = loss.clone().into_scalar::<f32>() as f64;
+            assert!((lb - l).abs() <= 1e-4 * lb.abs(), "{arch:?} step {s}: burn {lb} ours {l}");
+            let grads = GradientsParams::from_grads(loss.backward(), &net);
+            net = optim.step(1e-3, net, grads);
+        }
+        // Steps 0 and 18 see the same batch.
+        assert!(ours[18] < ours[0], "{arch:?} the loss falls: {ours:?}");
+    }
+}
+
+#[test]
+fn the_same_seed_gives_the_same_weights_with_any_thread_count() {
+    let arch = crate::model::Arch::Unet { base: 4 };
+    let init = FastNet::from_net(&initial(arch, &Device::flex()));
+    let run = |threads: usize| {
+        rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| {
+            let (_, mut f) = train_steps(init.clone(), 4);
+            let mut w = Vec::new();
+            f.params(&mut |p, _| w.extend_from_slice(p));
+            w
+        })
+    };
+    let (a, b, c) = (run(1), run(2), run(2));
+    assert_eq!(b, c, "two runs, one seed");
+    assert_eq!(a, b, "1 and 2 threads");
+}
+
+#[test]
+fn adam_state_round_trips() {
+    let mut f = FastNet::from_net(&initial(crate::model::Arch::Shallow { width: 4 }, &Device::flex()));
+    let mut a = Adam::default();
+    f.zero_grad();
+    a.step(&mut f, 1e-3, 1e-8);
+    let b = Adam::from_bytes(&a.to_bytes()).unwrap();
+    assert_eq!((a.time, &a.m, &a.v), (b.time, &b.m, &b.v));
+    assert!(Adam::from_bytes(b"{}\n").is_err());
+}
