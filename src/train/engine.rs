@@ -1,0 +1,89 @@
+use super::*;
+
+/// Mean quality of a model's outputs on validation pairs, and of the inputs themselves.
+pub fn evaluate(model: &Net, val: &[Pair], device: &Device) -> (metrics::Quality, metrics::Quality) {
+    evaluate_with(val, |x, w, h| from_tensor(model.forward(to_tensor(x, w, h, device))))
+}
+
+/// [`evaluate`] with the CPU fast path.
+pub fn evaluate_fast(model: &FastNet, val: &[Pair]) -> (metrics::Quality, metrics::Quality) {
+    evaluate_with(val, |x, w, h| from_t4(&model.forward(&to_t4(x, w, h))))
+}
+
+pub(super) fn evaluate_with(val: &[Pair], forward: impl Fn(&[&[u8]], usize, usize) -> Vec<Vec<u8>>) -> (metrics::Quality, metrics::Quality) {
+    let mut sums = [[0.0f64; 4]; 2];
+    for chunk in val.chunks(8) {
+        let (w, h) = (chunk[0].w, chunk[0].h);
+        let outs = forward(&chunk.iter().map(|p| p.lq.as_slice()).collect::<Vec<_>>(), w, h);
+        for (p, o) in chunk.iter().zip(outs) {
+            for (k, img) in [o.as_slice(), p.lq.as_slice()].iter().enumerate() {
+                let q = metrics::quality(img, &p.gt, w, h);
+                let v = [q.psnr_rgb.min(99.0), q.ssim_rgb, q.psnr_y.min(99.0), q.ssim_y];
+                for i in 0..4 {
+                    sums[k][i] += v[i];
+                }
+            }
+        }
+    }
+    let n = val.len().max(1) as f64;
+    let q = |s: [f64; 4]| metrics::Quality { psnr_rgb: s[0] / n, ssim_rgb: s[1] / n, psnr_y: s[2] / n, ssim_y: s[3] / n };
+    (q(sums[0]), q(sums[1]))
+}
+
+/// A model and its optimizer state, in one of the two implementations.
+pub(super) enum Engine {
+    /// burn's autodiff (the reference path; the GPU path with the `wgpu`/`cuda` features).
+    Burn { device: Device, model: Net, optim: burn::optim::ModuleOptimizer, huber: burn::nn::loss::HuberLoss },
+    /// `src/model/fast.rs`; `template` carries the parameter ids the checkpoints are written with.
+    Fast { net: Box<FastNet>, adam: Adam, template: Net },
+}
+
+impl Engine {
+    /// One optimisation step; returns the loss before it.
+    pub(super) fn step(&mut self, x: &T4, y: &T4, lr: f64, delta: f64, eps: f64) -> f64 {
+        match self {
+            Engine::Burn { device, model, optim, huber } => {
+                let loss = huber.forward(model.forward(x.to_tensor(device)), y.to_tensor(device), Reduction::Mean);
+                let lv = loss.clone().into_scalar::<f32>() as f64;
+                if lv.is_finite() {
+                    let grads = GradientsParams::from_grads(loss.backward(), model);
+                    // The module holds tensor handles: cloning it is cheap.
+                    *model = optim.step(lr, model.clone(), grads);
+                }
+                lv
+            }
+            Engine::Fast { net, adam, .. } => fast::train_step(net, adam, x, y, lr as f32, delta as f32, eps as f32),
+        }
+    }
+
+    /// The network as a burn module on the CPU (for checkpoints and reports).
+    pub(super) fn net(&self) -> Net {
+        match self {
+            Engine::Burn { model, .. } => model.valid(),
+            Engine::Fast { net, template, .. } => net.write_into(template.clone()),
+        }
+    }
+
+    pub(super) fn num_params(&self) -> usize {
+        match self {
+            Engine::Burn { model, .. } => model.num_params(),
+            Engine::Fast { template, .. } => template.num_params(),
+        }
+    }
+
+    pub(super) fn optim_bytes(&self) -> Result<Vec<u8>> {
+        match self {
+            Engine::Burn { optim, .. } => {
+                Ok(optim.clone().into_bytes().map_err(|e| Error::Invalid(format!("optimizer state: {e:?}")))?.to_vec())
+            }
+            Engine::Fast { adam, .. } => Ok(adam.to_bytes()),
+        }
+    }
+
+    pub(super) fn evaluate(&self, val: &[Pair]) -> (metrics::Quality, metrics::Quality) {
+        match self {
+            Engine::Burn { model, device, .. } => evaluate(&model.valid(), val, &device.clone().inner()),
+            Engine::Fast { net, .. } => evaluate_fast(net, val),
+        }
+    }
+}

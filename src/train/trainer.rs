@@ -1,0 +1,364 @@
+use super::*;
+
+/// The training state: model, optimizer, schedule, history. Fed batches by [`train`] (from
+/// shards) or by the `trainer` sink (straight from the generator).
+pub struct Trainer {
+    pub cfg: TrainConfig,
+    pub(super) dir: PathBuf,
+    pub(super) engine: Engine,
+    pub step: usize,
+    pub(super) start: usize,
+    pub(super) before: Option<Before>,
+    pub(super) interrupted: bool,
+    pub(super) end: usize,
+    pub val: Vec<Pair>,
+    pub train_inputs: std::collections::BTreeSet<u64>,
+    pub val_inputs: std::collections::BTreeSet<u64>,
+    pub(super) losses: Vec<LossPoint>,
+    pub(super) vals: Vec<ValPoint>,
+    /// The inputs of the latest `validate.bn_batches` training batches, for [`FastNet::recalibrate_bn`].
+    pub(super) recent: std::collections::VecDeque<T4>,
+    pub(super) averaged: Option<Averaged>,
+    pub(super) t0: Instant,
+    pub(super) t_train: Instant,
+    /// The folder's `.train.lock`, held until the run ends.
+    pub(super) _lock: std::fs::File,
+    pub(super) bar: crate::progress::Bar,
+}
+
+impl Trainer {
+    /// A fresh model (or the checkpoint in `output.dir` with `resume`).
+    ///
+    /// # Errors
+    /// Bad config values (all named), an unwritable output folder, an unreadable checkpoint.
+    pub fn new(cfg: &TrainConfig, opts: &TrainOptions) -> Result<Trainer> {
+        let errs = cfg.validate();
+        if !errs.is_empty() {
+            return Err(Error::Config(errs));
+        }
+        let dir = PathBuf::from(&cfg.output.dir);
+        std::fs::create_dir_all(&dir).map_err(|e| Error::Io { path: dir.clone(), cause: e })?;
+        let lock = lock_run_folder(&dir)?;
+        if !opts.resume {
+            fresh_run_folder(&dir, opts.overwrite)?;
+        }
+        let fast = cfg.optim.engine == EngineKind::Fast;
+        let device = if fast { Device::flex() } else { Device::flex().autodiff() };
+        // Initial weights are a function of the config's seed alone.
+        let mut model = Net::seeded(cfg.model, &device, hash(&[cfg.seed, hash_str("init")]));
+        if cfg.optim.zero_init {
+            model = model.zero_last_layer(&device);
+        }
+        let mut optim_bytes = None;
+        let mut start = 0;
+        let mut history: (Vec<LossPoint>, Vec<ValPoint>) = (Vec::new(), Vec::new());
+        let mut before = None;
+        // What an earlier report.json holds of its run.
+        #[derive(Deserialize)]
+        struct History {
+            steps: usize,
+            loss: Vec<LossPoint>,
+            validation: Vec<ValPoint>,
+            #[serde(default)]
+            before: Option<Before>,
+            config: Option<serde_json::Value>,
+        }
+        let read_history = |p: &Path| -> Option<History> { std::fs::read(p).ok().and_then(|b| serde_json::from_slice(&b).ok()) };
+        if let (Some(init), false) = (&cfg.init, opts.resume) {
+            let path = Path::new(init);
+            let (net, arch) = load_model(path, &device).map_err(|e| Error::Invalid(format!("init: {e}")))?;
+            if arch != cfg.model {
+                return Err(Error::Invalid(format!(
+                    "init: {init} holds a {} model, the config's model is {}",
+                    arch.name(),
+                    cfg.model.name()
+                )));
+            }
+            model = net;
+            // A fine-tuning run is a run of its own (steps 1 to optim.steps, a fresh schedule
+            // peaking at optim.lr); the initial model's history is kept for the curves.
+            before = path.is_dir().then(|| read_history(&path.join("report.json"))).flatten().map(|h| Before {
+                model: init.clone(),
+                steps: h.steps,
+                loss: h.loss,
+                validation: h.validation,
+            });
+        }
+        if opts.resume {
+            let lp = dir.join("latest.json");
+            let (latest, mpath, op) =
+                Latest::read(&dir)?.ok_or_else(|| Error::Io { path: lp, cause: std::io::Error::from(std::io::ErrorKind::NotFound) })?;
+            let (net, arch) = load_model(&mpath, &device)?;
+            if arch != cfg.model {
+                return Err(Error::Usage(format!(
+                    "{}: the run being resumed is a {} model and the config asks for {}: --resume continues the same network \
+                     (to start another from it, use --set init={:?} with a fresh output.dir)",
+                    mpath.display(),
+                    arch.name(),
+                    cfg.model.name(),
+                    dir.display().to_string()
+                )));
+            }
+            let bytes = std::fs::read(&mpath).map_err(|e| Error::Io { path: mpath.clone(), cause: e })?;
+            let ids: Vec<u64> = read_meta(&bytes)
+                .ok()
+                .and_then(|m| m["param_ids"].as_str().and_then(|s| serde_json::from_str(s).ok()))
+                .ok_or_else(|| Error::Invalid(format!("{}: no param_ids in the metadata; cannot resume the optimizer", mpath.display())))?;
+            model = net.map(&mut IdSetter { ids, next: 0 });
+            optim_bytes = Some((op.clone(), std::fs::read(&op).map_err(|e| Error::Io { path: op, cause: e })?));
+            start = latest.step;
+            // A run stopped before writing its report resumes without the history.
+            if let Some(mut h) = read_history(&dir.join("report.json")) {
+                if let Some(was) = h.config.as_ref().and_then(|c| c.get("optim")) {
+                    schedule_unchanged(was, &cfg.optim, &dir)?;
+                }
+                h.loss.retain(|p| p.step <= start);
+                h.validation.retain(|p| p.step <= start);
+                history = (h.loss, h.validation);
+                before = h.before;
+            }
+        }
+        let engine = if fast {
+            let adam = match optim_bytes {
+                Some((path, b)) => Adam::from_bytes(&b).map_err(|e| {
+                    Error::Invalid(format!("{}: {e} (a checkpoint of optim.engine = \"burn\" resumes with that engine)", path.display()))
+                })?,
+                None => Adam::default(),
+            };
+            Engine::Fast { net: Box::new(FastNet::from_net(&model)), adam, template: model }
+        } else {
+            let mut optim = AdamConfig::new().with_epsilon(cfg.optim.adam_epsilon as f32).init();
+            if let Some((path, b)) = optim_bytes {
+                optim = optim.from_bytes(burn::tensor::Bytes::from_bytes_vec(b)).map_err(|e| {
+                    Error::Invalid(format!("{}: {e:?} (a checkpoint of optim.engine = \"fast\" resumes with that engine)", path.display()))
+                })?;
+            }
+            Engine::Burn { device, model, optim, huber: HuberLossConfig::new(cfg.optim.huber_delta as f32).init() }
+        };
+        let end = opts.stop_after.unwrap_or(cfg.optim.steps).min(cfg.optim.steps);
+        let bar = crate::progress::Bar::new(opts.progress, "train", "steps", Some(end.saturating_sub(start) as u64));
+        Ok(Trainer {
+            cfg: cfg.clone(),
+            dir,
+            engine,
+            step: start,
+            start,
+            before,
+            interrupted: false,
+            end,
+            val: Vec::new(),
+            train_inputs: Default::default(),
+            val_inputs: Default::default(),
+            losses: history.0,
+            vals: history.1,
+            recent: Default::default(),
+            averaged: None,
+            t0: Instant::now(),
+            t_train: Instant::now(),
+            _lock: lock,
+            bar,
+        })
+    }
+
+    /// True once the last step is done.
+    pub fn done(&self) -> bool {
+        self.step >= self.end
+    }
+
+    /// Files a sample under training or validation by its source input; true if it is for
+    /// training.
+    pub fn admit(&mut self, p: &Pair) -> bool {
+        if is_validation(self.cfg.seed, p.source, self.cfg.data.val_fraction) {
+            self.val_inputs.insert(p.source);
+            false
+        } else {
+            self.train_inputs.insert(p.source);
+            true
+        }
+    }
+
+    /// Keeps the inputs of a training batch for the BatchNorm recalibration; a resumed run
+    /// passes the batches it replays, so it recalibrates from the same ones.
+    pub fn remember(&mut self, batch: &[Pair]) {
+        let k = if matches!(self.engine, Engine::Fast { .. }) { self.cfg.validate.bn_batches } else { 0 };
+        keep_latest(&mut self.recent, k, batch);
+    }
+
+    /// Recomputes BatchNorm's running statistics from the remembered batches (fast engine).
+    pub(super) fn recalibrate(&mut self) {
+        if let Engine::Fast { net, .. } = &mut self.engine {
+            net.recalibrate_bn(self.recent.make_contiguous());
+        }
+    }
+
+    /// One optimisation step on `batch`, then validation and checkpoint when due.
+    ///
+    /// # Errors
+    /// A non-finite loss (naming the step), or a checkpoint that cannot be written.
+    pub fn train_step(&mut self, batch: &[Pair]) -> Result<()> {
+        let cfg = &self.cfg;
+        let step = self.step;
+        let (w, h) = (batch[0].w, batch[0].h);
+        let aug = |img: &[u8], i: usize| -> Vec<u8> {
+            if cfg.data.augment && w == h {
+                augment(img, w, hash(&[cfg.seed, step as u64, i as u64, hash_str("augment")]) % 8)
+            } else {
+                img.to_vec()
+            }
+        };
+        let lqs: Vec<Vec<u8>> = batch.iter().enumerate().map(|(i, p)| aug(&p.lq, i)).collect();
+        let gts: Vec<Vec<u8>> = batch.iter().enumerate().map(|(i, p)| aug(&p.gt, i)).collect();
+        let x = to_t4(&lqs.iter().map(|v| v.as_slice()).collect::<Vec<_>>(), w, h);
+        let y = to_t4(&gts.iter().map(|v| v.as_slice()).collect::<Vec<_>>(), w, h);
+        let lr = cfg.lr_at(step);
+        let lv = self.engine.step(&x, &y, lr, cfg.optim.huber_delta, cfg.optim.adam_epsilon);
+        if !lv.is_finite() {
+            return Err(Error::Invalid(format!(
+                "step {}: the loss is {lv}; stopped. The last good checkpoint is listed in {}",
+                step + 1,
+                self.dir.join("latest.json").display()
+            )));
+        }
+        self.losses.push(LossPoint { step: step + 1, loss: lv, lr });
+        self.step += 1;
+        let done = self.step;
+        let (validate, save) = (
+            (done.is_multiple_of(cfg.validate.every) || done == self.end) && !self.val.is_empty(),
+            done.is_multiple_of(cfg.output.checkpoint_every) || done == self.end,
+        );
+        self.remember(batch);
+        if validate || save {
+            self.recalibrate();
+        }
+        let cfg = &self.cfg;
+        if validate {
+            let (m, i) = self.engine.evaluate(&self.val);
+            self.vals.push(ValPoint { step: done, model: m, input: i });
+        }
+        if save {
+            save_checkpoint(&self.dir, &self.engine.net(), self.engine.optim_bytes()?, &cfg.model, cfg.seed, done)?;
+            self.write_report()?;
+        }
+        let rate = ((done - self.start) * batch.len()) as f64 / self.t_train.elapsed().as_secs_f64();
+        let msg = format!(
+            "loss {lv:.5} lr {lr:.2e} {rate:.1} patches/s{}",
+            self.vals.last().map_or(String::new(), |v| format!(" val PSNR {:.2}", v.model.psnr_rgb))
+        );
+        self.bar.set_message(format!("(step {done}/{}) {msg}", self.end));
+        self.bar.set_position((done - self.start) as u64);
+        Ok(())
+    }
+
+    /// Saves a checkpoint at the current step (unless one was just saved) and the report; the
+    /// error to stop with, which says how to continue.
+    pub(super) fn checkpoint_and_stop(&mut self) -> Error {
+        let done = self.step;
+        self.interrupted = true;
+        let saved = done % self.cfg.output.checkpoint_every == 0;
+        let res = if saved {
+            Ok(())
+        } else {
+            self.recalibrate();
+            self.engine
+                .optim_bytes()
+                .and_then(|o| save_checkpoint(&self.dir, &self.engine.net(), o, &self.cfg.model, self.cfg.seed, done).map(|_| ()))
+        }
+        .and_then(|()| self.write_report().map(|_| ()));
+        match res {
+            Ok(()) => {
+                Error::Interrupted(format!("after step {done}: checkpoint saved in {}; continue with --resume", self.dir.display()))
+            }
+            Err(e) => e,
+        }
+    }
+
+    /// The report of the run so far.
+    pub(super) fn report(&self) -> TrainReport {
+        TrainReport {
+            version: env!("CARGO_PKG_VERSION"),
+            arch: self.cfg.model.name(),
+            parameters: self.engine.num_params(),
+            steps: self.step,
+            resumed_from: (self.start > 0).then_some(self.start),
+            interrupted: self.interrupted,
+            seconds: self.t0.elapsed().as_secs_f64(),
+            patches_per_s: ((self.step - self.start) * self.cfg.optim.batch) as f64 / self.t_train.elapsed().as_secs_f64().max(1e-9),
+            train_inputs: self.train_inputs.iter().copied().collect(),
+            val_inputs: self.val_inputs.iter().copied().collect(),
+            val_samples: self.val.len(),
+            metrics_convention: metrics::CONVENTION,
+            loss: self.losses.clone(),
+            validation: self.vals.clone(),
+            schedule: self.cfg.schedule_words(),
+            before: self.before.clone(),
+            averaged: self.averaged.clone(),
+            config: self.cfg.clone(),
+        }
+    }
+
+    /// `report.json`, `history.csv` and `curves.png` of the run so far (the whole history,
+    /// resumed parts included).
+    pub(super) fn write_report(&self) -> Result<TrainReport> {
+        let report = self.report();
+        let bytes = serde_json::to_vec_pretty(&report).expect("json");
+        write_atomic(&self.dir.join("report.json"), |w| w.write_all(&bytes))?;
+        write_atomic(&self.dir.join("history.csv"), |w| w.write_all(history_csv(&report).as_bytes()))?;
+        training_curves(&self.dir.join("curves.png"), &report)?;
+        Ok(report)
+    }
+
+    /// Writes `report.json`, `history.csv` and `curves.png`.
+    ///
+    /// # Errors
+    /// They cannot be written.
+    pub fn finish(mut self) -> Result<TrainReport> {
+        self.bar.finish();
+        if self.cfg.output.average_last > 1 {
+            self.average()?;
+        }
+        self.write_report()
+    }
+
+    /// Writes `model.safetensors`: the mean weights of the last `output.average_last`
+    /// checkpoints up to this step, BatchNorm recalibrated on it, and scores it.
+    pub(super) fn average(&mut self) -> Result<()> {
+        let Engine::Fast { template, .. } = &self.engine else { return Ok(()) };
+        let mut steps: Vec<usize> = std::fs::read_dir(&self.dir)
+            .map_err(|e| Error::Io { path: self.dir.clone(), cause: e })?
+            .filter_map(|e| {
+                let name = e.ok()?.file_name().into_string().ok()?;
+                name.strip_prefix("model-")?.strip_suffix(".safetensors")?.parse::<usize>().ok()
+            })
+            .filter(|&s| s <= self.step)
+            .collect();
+        steps.sort_unstable();
+        let steps = steps.split_off(steps.len().saturating_sub(self.cfg.output.average_last));
+        let device = Device::flex();
+        let mut sum: Option<(FastNet, Vec<Vec<f64>>)> = None;
+        for &s in &steps {
+            let (net, _) = load_model(&self.dir.join(format!("model-{s:07}.safetensors")), &device)?;
+            let mut f = FastNet::from_net(&net);
+            let mut vals = Vec::new();
+            f.params(&mut |p, _| vals.push(p.to_vec()));
+            match &mut sum {
+                None => sum = Some((f, vals.iter().map(|v| v.iter().map(|&x| x as f64).collect()).collect())),
+                Some((_, acc)) => acc.iter_mut().zip(&vals).for_each(|(a, v)| a.iter_mut().zip(v).for_each(|(a, &x)| *a += x as f64)),
+            }
+        }
+        let Some((mut net, acc)) = sum else { return Ok(()) };
+        let n = steps.len() as f64;
+        let mut it = acc.into_iter();
+        net.params(&mut |p, _| p.iter_mut().zip(it.next().expect("same layout")).for_each(|(p, a)| *p = (a / n) as f32));
+        net.recalibrate_bn(self.recent.make_contiguous());
+        let (m, i) = evaluate_fast(&net, &self.val);
+        save_model(&self.dir.join("model.safetensors"), &net.write_into(template.clone()), &self.cfg.model, self.cfg.seed, self.step)?;
+        eprintln!(
+            "model.safetensors: the mean of checkpoints {:?}; validation PSNR {:.2} dB (the last checkpoint's: {})",
+            steps,
+            m.psnr_rgb,
+            self.vals.last().map_or("none".into(), |v| format!("{:.2}", v.model.psnr_rgb))
+        );
+        self.averaged = Some(Averaged { steps, model: m, input: i });
+        Ok(())
+    }
+}
