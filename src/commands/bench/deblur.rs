@@ -1,0 +1,96 @@
+use super::*;
+
+/// One shipped model's speed in `bench deblur`.
+#[derive(Debug, serde::Serialize)]
+pub struct DeblurSpeed {
+    pub model: String,
+    pub arch: String,
+    pub width: usize,
+    pub height: usize,
+    /// The whole frame in one forward pass.
+    pub whole_frames_per_s_median: f64,
+    /// As `pipeline deblur` runs by default (tiles of at most 384 px overlapping by 32, blended,
+    /// on all cores).
+    pub tiled_frames_per_s_median: f64,
+    /// PyTorch CPU, the same architecture, whole frame, in the same run (when installed).
+    pub torch: Option<serde_json::Value>,
+    /// torch frames/s (whole frame, the same thread count) over ours as `deblur` runs by
+    /// default: our time per frame over PyTorch's.
+    pub torch_over_ours: Option<f64>,
+    /// The same against our whole-frame pass.
+    pub torch_over_ours_whole: Option<f64>,
+}
+
+/// `bench deblur`: frames/s of each shipped model on a `width x height` frame, whole and tiled,
+/// beside PyTorch on the same architecture when torch is installed.
+pub fn deblur(width: usize, height: usize, repeats: usize) -> crate::Result<Vec<DeblurSpeed>> {
+    use crate::model::infer::{run_frame, Tiling};
+    use crate::model::Arch;
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let script = torch_script();
+    let device = burn::tensor::Device::flex();
+    let frame: Vec<u8> = (0..width * height * 3).map(|i| (crate::rng::hash(&[i as u64 / 7]) % 256) as u8).collect();
+    let mut out = Vec::new();
+    let mut names: Vec<String> = std::fs::read_dir(root.join("models"))
+        .map_err(|e| crate::Error::Io { path: root.join("models"), cause: e })?
+        .filter_map(|e| e.ok())
+        .filter(|e| e.path().join("model.safetensors").exists())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    for name in &names {
+        let path = root.join("models").join(name).join("model.safetensors");
+        let (net, arch) = crate::train::load_model(&path, &device)?;
+        let net = crate::model::fast::FastNet::from_net(&net);
+        let time = |tiling: Tiling| {
+            let mut t = Vec::new();
+            for r in 0..repeats + 1 {
+                let t0 = Instant::now();
+                std::hint::black_box(run_frame(&net, &frame, width, height, tiling));
+                if r > 0 {
+                    t.push(t0.elapsed().as_secs_f64());
+                }
+            }
+            1.0 / median(&mut t)
+        };
+        let whole = time(Tiling { tile: width.max(height), overlap: 0 });
+        let tiled = time(Tiling::default());
+        let torch_row: Option<serde_json::Value> = if let Some(script) = &script {
+            let (kind, w) = match arch {
+                Arch::Unet { base } => ("unet", base),
+                Arch::Shallow { width } => ("shallow", width),
+            };
+            std::process::Command::new(python())
+                .arg(&script)
+                .env("TORCH_THREADS", rayon::current_num_threads().to_string())
+                .args(["infer", kind, &w.to_string(), &height.to_string(), &width.to_string(), &repeats.to_string()])
+                .output()
+                .ok()
+                .and_then(|o| serde_json::from_slice(&o.stdout).ok())
+        } else {
+            None
+        };
+        let torch_fps = torch_row.as_ref().and_then(|t| t["frames_per_s_median"].as_f64());
+        let ratio = torch_fps.map(|t| t / tiled);
+        eprintln!(
+            "bench: {name} ({}) {width}x{height}: {whole:.3} frames/s whole, {tiled:.3} tiled (default){}",
+            arch.name(),
+            match ratio {
+                Some(r) => format!("; torch {:.3} frames/s = {r:.2}x ours", r * tiled),
+                None => "; torch not installed, no comparison".into(),
+            }
+        );
+        out.push(DeblurSpeed {
+            model: format!("models/{name}"),
+            arch: arch.name(),
+            width,
+            height,
+            whole_frames_per_s_median: whole,
+            tiled_frames_per_s_median: tiled,
+            torch: torch_row,
+            torch_over_ours: ratio,
+            torch_over_ours_whole: torch_fps.map(|t| t / whole),
+        });
+    }
+    Ok(out)
+}

@@ -1,0 +1,164 @@
+use super::*;
+
+/// One model's speed in `bench train`.
+#[derive(Debug, serde::Serialize)]
+pub struct ModelSpeed {
+    pub model: String,
+    pub engine: &'static str,
+    pub parameters: usize,
+    pub batch: usize,
+    pub threads: usize,
+    pub train_patches_per_s_median: f64,
+    pub forward_ms_per_patch_median: f64,
+    pub torch: Option<serde_json::Value>,
+    /// Our time per patch over PyTorch's (training step; forward of one patch): 1.0 is parity.
+    pub train_time_ratio_vs_torch: Option<f64>,
+    pub forward_time_ratio_vs_torch: Option<f64>,
+}
+
+pub(super) fn bench_data(n: usize, salt: usize) -> crate::model::fast::T4 {
+    let v: Vec<f32> = (0..n * 3 * 128 * 128).map(|i| (((i + salt) * 7919) % 1000) as f32 / 1000.0).collect();
+    crate::model::fast::T4::new(n, 3, 128, 128, v)
+}
+
+/// Seconds per training step and ms per 128x128 forward with burn's autodiff on flex.
+pub(super) fn time_burn(arch: crate::model::Arch, batch: usize, repeats: usize) -> (Vec<f64>, Vec<f64>) {
+    use burn::module::Module;
+    use burn::nn::loss::{HuberLossConfig, Reduction};
+    use burn::optim::{AdamConfig, GradientsParams};
+    use burn::tensor::Device;
+    let device = Device::flex().autodiff();
+    let mut model = crate::model::Net::seeded(arch, &device, 7);
+    let mut optim = AdamConfig::new().with_epsilon(1e-8).init();
+    let huber = HuberLossConfig::new(0.02).init();
+    let (x, y) = (bench_data(batch, 0), bench_data(batch, 1));
+    let mut steps = Vec::new();
+    for r in 0..repeats + 1 {
+        let t = Instant::now();
+        let loss = huber.forward(model.forward(x.to_tensor(&device)), y.to_tensor(&device), Reduction::Mean);
+        let grads = GradientsParams::from_grads(loss.backward(), &model);
+        model = optim.step(1e-4, model, grads);
+        if r > 0 {
+            steps.push(t.elapsed().as_secs_f64());
+        }
+    }
+    let valid = model.valid();
+    let dev = device.clone().inner();
+    let one = bench_data(1, 2);
+    let mut fwd = Vec::new();
+    for r in 0..repeats + 1 {
+        let t = Instant::now();
+        std::hint::black_box(valid.forward(one.to_tensor(&dev)).into_data());
+        if r > 0 {
+            fwd.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    (steps, fwd)
+}
+
+/// The same with the CPU fast path (`src/model/fast.rs`).
+pub(super) fn time_fast(arch: crate::model::Arch, batch: usize, repeats: usize) -> (Vec<f64>, Vec<f64>) {
+    use crate::model::fast::{train_step, Adam, FastNet};
+    let mut net = FastNet::from_net(&crate::model::Net::seeded(arch, &burn::tensor::Device::flex(), 7));
+    let mut adam = Adam::default();
+    let (x, y) = (bench_data(batch, 0), bench_data(batch, 1));
+    let mut steps = Vec::new();
+    for r in 0..repeats + 1 {
+        let t = Instant::now();
+        train_step(&mut net, &mut adam, &x, &y, 1e-4, 0.02, 1e-8);
+        if r > 0 {
+            steps.push(t.elapsed().as_secs_f64());
+        }
+    }
+    let one = bench_data(1, 2);
+    let mut fwd = Vec::new();
+    for r in 0..repeats + 1 {
+        let t = Instant::now();
+        std::hint::black_box(net.forward(&one));
+        if r > 0 {
+            fwd.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    (steps, fwd)
+}
+
+/// `bench train`: training step and forward speed per 128x128 patch of the given
+/// architectures with the fast path (and burn's path with `with_burn`), beside PyTorch on the
+/// same architectures with the same number of threads when torch is installed
+/// (`benches/torch_models.py`).
+pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize, with_burn: bool) -> crate::Result<Vec<ModelSpeed>> {
+    use burn::module::Module;
+    let script = torch_script();
+    let threads = rayon::current_num_threads();
+    let mut out = Vec::new();
+    for &arch in archs {
+        let parameters = crate::model::Net::new(arch, &burn::tensor::Device::flex()).num_params();
+        let torch_row: Option<serde_json::Value> = script.as_ref().and_then(|script| {
+            let (kind, width) = match arch {
+                crate::model::Arch::Unet { base } => ("unet", base),
+                crate::model::Arch::Shallow { width } => ("shallow", width),
+            };
+            std::process::Command::new(python())
+                .arg(script)
+                .args([kind, &width.to_string(), &batch.to_string(), &repeats.to_string()])
+                .env("TORCH_THREADS", threads.to_string())
+                .output()
+                .ok()
+                .and_then(|o| serde_json::from_slice(&o.stdout).ok())
+        });
+        let mut engines: Vec<(&'static str, fn(crate::model::Arch, usize, usize) -> (Vec<f64>, Vec<f64>))> = vec![("fast", time_fast)];
+        if with_burn {
+            engines.push(("burn", time_burn));
+        }
+        for (engine, f) in engines {
+            let (mut steps, mut fwd) = f(arch, batch, repeats);
+            let (step, fwd) = (median(&mut steps), median(&mut fwd));
+            let tt = torch_row.as_ref().and_then(|t| t["train_patches_per_s_median"].as_f64());
+            let tf = torch_row.as_ref().and_then(|t| t["forward_ms_per_patch_median"].as_f64());
+            let row = ModelSpeed {
+                model: arch.name(),
+                engine,
+                parameters,
+                batch,
+                threads,
+                train_patches_per_s_median: batch as f64 / step,
+                forward_ms_per_patch_median: fwd,
+                torch: torch_row.clone(),
+                train_time_ratio_vs_torch: tt.map(|t| t * step / batch as f64),
+                forward_time_ratio_vs_torch: tf.map(|t| fwd / t),
+            };
+            eprintln!(
+                "bench: {} ({engine}, {threads} threads): {:.2} patches/s training (batch {batch}), forward {:.1} ms per 128x128 patch{}",
+                row.model,
+                row.train_patches_per_s_median,
+                row.forward_ms_per_patch_median,
+                match (tt, tf) {
+                    (Some(tt), Some(tf)) => format!(
+                        "; PyTorch {tt:.2} patches/s, {tf:.1} ms: our time {:.2}x training, {:.2}x forward",
+                        row.train_time_ratio_vs_torch.unwrap_or(f64::NAN),
+                        row.forward_time_ratio_vs_torch.unwrap_or(f64::NAN)
+                    ),
+                    _ => "; torch not installed, no comparison".into(),
+                }
+            );
+            out.push(row);
+        }
+    }
+    Ok(out)
+}
+
+/// The Python that runs the PyTorch baseline: `PIPELINE_PYTHON`, else `python3`.
+pub(super) fn python() -> String {
+    std::env::var("PIPELINE_PYTHON").unwrap_or_else(|_| "python3".into())
+}
+
+/// `benches/torch_models.py` when [`python`] can import torch (the PyTorch baseline), else `None`.
+pub(super) fn torch_script() -> Option<std::path::PathBuf> {
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/torch_models.py");
+    let torch = std::process::Command::new(python())
+        .args(["-c", "import torch"])
+        .stderr(std::process::Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success());
+    (torch && script.exists()).then_some(script)
+}
