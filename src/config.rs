@@ -585,7 +585,10 @@ inputs = ["blur"]
     fn a_set_value_that_is_not_toml_is_named_in_plain_words() {
         let e = plan_of(GOOD, &["seed=18446744073709551615"]).unwrap_err().to_string();
         assert!(e.contains("--set seed") && e.contains("not a TOML value") && e.contains("at most 9223372036854775807"), "{e}");
-        let noisy = GOOD.replace("[sinks.out]\ntype = \"shards\"\ninputs = [\"blur\"]", "[transforms.noise]\ntype = \"noise\"\ninputs = [\"blur\"]\nsigma = 1.0\n[sinks.out]\ntype = \"shards\"\ninputs = [\"noise\"]");
+        let noisy = GOOD.replace(
+            "[sinks.out]\ntype = \"shards\"\ninputs = [\"blur\"]",
+            "[transforms.noise]\ntype = \"noise\"\ninputs = [\"blur\"]\nsigma = 1.0\n[sinks.out]\ntype = \"shards\"\ninputs = [\"noise\"]",
+        );
         assert!(plan_of(&noisy, &[]).is_ok());
         let e = plan_of(&noisy, &["transforms.noise.sigma=[1,"]).unwrap_err().to_string();
         assert!(e.contains("--set transforms.noise.sigma") && e.contains("not a TOML value") && !e.contains("untagged"), "{e}");

@@ -135,7 +135,6 @@ fn temp_for(path: &Path) -> PathBuf {
     path.with_file_name(crate::io::temp_name(&name, ext.as_deref()))
 }
 
-
 /// Removes temporaries of killed deblur runs in `dir` (this machine, process gone).
 fn remove_stale(dir: &Path) {
     for p in crate::io::remove_stale(if dir.as_os_str().is_empty() { Path::new(".") } else { dir }, 0) {

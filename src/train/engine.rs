@@ -10,7 +10,10 @@ pub fn evaluate_fast(model: &FastNet, val: &[Pair]) -> (metrics::Quality, metric
     evaluate_with(val, |x, w, h| from_t4(&model.forward(&to_t4(x, w, h))))
 }
 
-pub(super) fn evaluate_with(val: &[Pair], forward: impl Fn(&[&[u8]], usize, usize) -> Vec<Vec<u8>>) -> (metrics::Quality, metrics::Quality) {
+pub(super) fn evaluate_with(
+    val: &[Pair],
+    forward: impl Fn(&[&[u8]], usize, usize) -> Vec<Vec<u8>>,
+) -> (metrics::Quality, metrics::Quality) {
     let mut sums = [[0.0f64; 4]; 2];
     for chunk in val.chunks(8) {
         let (w, h) = (chunk[0].w, chunk[0].h);

@@ -79,7 +79,16 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
     // Which inputs went where, and the validation samples.
     let mut size = None;
     let mut val = ValPick::new(cfg.validate.max_samples, cfg.seed);
+    // A signal during the scan of the shards or the replay of a resume stops there: nothing has
+    // been trained since the last checkpoint, so nothing is lost.
+    crate::signal::install();
+    let stopped = |what: &str| {
+        Error::Interrupted(format!("while {what}, before any new step; {} is as it was: run the same command again", cfg.output.dir))
+    };
     for s in &shards {
+        if crate::signal::interrupted() {
+            return Err(stopped("reading the shards"));
+        }
         for p in read_shard(s, size)? {
             size.get_or_insert((p.w, p.h));
             if !t.admit(&p) {
@@ -98,12 +107,14 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
     // Replay the data order up to the resumed step, remembering the batches BatchNorm is
     // recalibrated from.
     for step in 0..t.step {
+        if crate::signal::interrupted() {
+            return Err(stopped("replaying the data order up to the resumed step"));
+        }
         let batch: Vec<Pair> = (0..cfg.optim.batch).map(|_| stream.next()).collect::<Result<_>>()?;
         if step + cfg.validate.bn_batches >= t.step {
             t.remember(&batch);
         }
     }
-    crate::signal::install();
     while !t.done() {
         let batch: Vec<Pair> = (0..cfg.optim.batch).map(|_| stream.next()).collect::<Result<_>>()?;
         t.train_step(&batch)?;

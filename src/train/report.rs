@@ -96,7 +96,8 @@ pub fn training_curves(path: &std::path::Path, r: &TrainReport) -> crate::Result
         .iter()
         .map(|b| {
             let kb = (b.loss.len() / 100).max(1);
-            let points = b.loss.windows(kb).map(|w| (shift(w[kb - 1].step), (w.iter().map(|p| p.loss).sum::<f64>() / kb as f64).max(1e-12).log10()));
+            let points =
+                b.loss.windows(kb).map(|w| (shift(w[kb - 1].step), (w.iter().map(|p| p.loss).sum::<f64>() / kb as f64).max(1e-12).log10()));
             crate::plot::Series { name: "INITIAL MODEL'S RUN", points: points.collect(), color: grey }
         })
         .collect();

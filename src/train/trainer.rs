@@ -265,9 +265,7 @@ impl Trainer {
         }
         .and_then(|()| self.write_report().map(|_| ()));
         match res {
-            Ok(()) => {
-                Error::Interrupted(format!("after step {done}: checkpoint saved in {}; continue with --resume", self.dir.display()))
-            }
+            Ok(()) => Error::Interrupted(format!("after step {done}: checkpoint saved in {}; continue with --resume", self.dir.display())),
             Err(e) => e,
         }
     }

@@ -167,7 +167,8 @@ fn the_output_kind_follows_its_extension_and_a_mismatch_is_a_usage_error() {
     let mut buf = Vec::new();
     pipeline::io::png::write_rgb8(&mut buf, 32, 24, &rgb).unwrap();
     std::fs::write(frames.join("a.png"), &buf).unwrap();
-    let video = clip("deblur-kinds.mp4", &["-i", FIXTURE, "-frames:v", "2", "-vf", "crop=48:32", "-c:v", "libx264", "-preset", "ultrafast"]);
+    let video =
+        clip("deblur-kinds.mp4", &["-i", FIXTURE, "-frames:v", "2", "-vf", "crop=48:32", "-c:v", "libx264", "-preset", "ultrafast"]);
     let (f, v, img) = (frames.to_str().unwrap(), video.to_str().unwrap(), frames.join("a.png"));
     for (input, out, says) in [
         (f, d.join("out.mp4"), "the input is a folder of images"),

@@ -379,7 +379,18 @@ fn a_folder_holding_a_run_is_not_reused_without_resume_or_overwrite() {
     // first run goes on.
     let busy = run_dir.join(".train.lock");
     let long = bin()
-        .args(["train", "--config", cfg, "--progress", "never", "--overwrite", "--set", "optim.steps=1000000", "--set", "output.checkpoint_every=1000000"])
+        .args([
+            "train",
+            "--config",
+            cfg,
+            "--progress",
+            "never",
+            "--overwrite",
+            "--set",
+            "optim.steps=1000000",
+            "--set",
+            "output.checkpoint_every=1000000",
+        ])
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();

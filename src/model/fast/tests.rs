@@ -101,8 +101,7 @@ fn network_gradients_match(arch: crate::model::Arch, n: usize, h: usize, w: usiz
     let y = rand(n, 3, h, w, 6);
     // burn
     let out = net.forward(x.to_tensor(&ad()));
-    let loss =
-        burn::nn::loss::HuberLossConfig::new(0.02).init().forward(out.clone(), y.to_tensor(&ad()), burn::nn::loss::Reduction::Mean);
+    let loss = burn::nn::loss::HuberLossConfig::new(0.02).init().forward(out.clone(), y.to_tensor(&ad()), burn::nn::loss::Reduction::Mean);
     let gp = GradientsParams::from_grads(loss.backward(), &net);
     // ours
     let mut f = FastNet::from_net(&net);
