@@ -404,7 +404,7 @@ fn plan_checked(raw: RawPipeline, table: toml::Table, type_errs: Vec<ConfigError
             continue;
         }
         let input = &inputs[0];
-        if !names.iter().any(|n| *n == input) || raw.sinks.contains_key(input) {
+        if !names.contains(&input) || raw.sinks.contains_key(input) {
             let best = names.iter().filter(|n| !raw.sinks.contains_key(n.as_str())).min_by_key(|n| edit_distance(n, input));
             let hint = best.filter(|b| edit_distance(b, input) <= 2).map(|b| format!(" (did you mean {b:?}?)")).unwrap_or_default();
             errs.push(err(format!("{key}.inputs"), format!("input {input:?} doesn't match any source or transform{hint}")));

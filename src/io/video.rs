@@ -309,12 +309,12 @@ fn set_colorspace(sc: &mut ff::software::scaling::Context, frame: &ff::frame::Vi
     // SAFETY: the context pointer is valid for the scaler's lifetime; the coefficient tables are
     // static arrays owned by libswscale.
     unsafe {
-        let table = ffi::sws_getCoefficients(cs as i32);
+        let table = ffi::sws_getCoefficients(cs);
         ffi::sws_setColorspaceDetails(
             sc.as_mut_ptr(),
             table,
             src_full,
-            ffi::sws_getCoefficients(ffi::SWS_CS_DEFAULT as i32),
+            ffi::sws_getCoefficients(ffi::SWS_CS_DEFAULT),
             1,
             0,
             1 << 16,
@@ -380,7 +380,7 @@ impl VideoWriter {
         let global = octx.format().flags().contains(ff::format::Flags::GLOBAL_HEADER);
         let (id, pix) = match codec {
             Codec::Ffv1 => (ff::codec::Id::FFV1, ff::format::Pixel::BGRZ),
-            Codec::H264 if w % 2 == 0 && h % 2 == 0 => (ff::codec::Id::H264, ff::format::Pixel::YUV420P),
+            Codec::H264 if w.is_multiple_of(2) && h.is_multiple_of(2) => (ff::codec::Id::H264, ff::format::Pixel::YUV420P),
             Codec::H264 => (ff::codec::Id::H264, ff::format::Pixel::YUV444P),
             Codec::Jpeg => (ff::codec::Id::MJPEG, ff::format::Pixel::YUVJ444P),
             Codec::Tiff => (ff::codec::Id::TIFF, ff::format::Pixel::RGB24),
@@ -415,7 +415,7 @@ impl VideoWriter {
         let mut ost = octx.add_stream(codec).map_err(fmt_err)?;
         ost.set_parameters(&enc);
         ost.set_time_base(tb);
-        drop(ost);
+        let _ = ost; // the stream's borrow of the context ends here
         octx.write_header().map_err(|e| format!("cannot write the header ({})", fmt_err(e)))?;
         let stream_tb = octx.stream(0).map(|s| s.time_base()).unwrap_or(tb);
         let scaler = ff::software::scaling::Context::get(

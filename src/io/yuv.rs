@@ -279,7 +279,7 @@ mod tests {
         v[4 + 1] = 228; // chroma (1, 1): luma 2..4 x 2..4
         let conv = Converter::new(Matrix::BT709, true, 1, 1);
         let (mut r, mut g, mut b) = (vec![0u8; 64], vec![0u8; 64], vec![0u8; 64]);
-        conv.convert(&Source { y: plane(&y, w), cb: plane(&u, 4), cr: plane(&v, 4), w: w, h: h }, [&mut r, &mut g, &mut b]);
+        conv.convert(&Source { y: plane(&y, w), cb: plane(&u, 4), cr: plane(&v, 4), w, h }, [&mut r, &mut g, &mut b]);
         let k = 2.0 * (1.0 - 0.2126);
         let at = |x: usize, yy: usize| r[yy * w + x] as f32;
         assert_eq!(b, vec![100u8; 64], "Cb is neutral: blue equals luma");
@@ -346,12 +346,12 @@ mod tests {
             let conv = Converter::new(Matrix::BT709, false, sx, sy);
             let mut whole = [vec![0u8; w * h], vec![0u8; w * h], vec![0u8; w * h]];
             let [a, b, c] = &mut whole;
-            conv.convert(&Source { y: plane(&y, w), cb: plane(&u, cw), cr: plane(&v, cw), w: w, h: h }, [a, b, c]);
+            conv.convert(&Source { y: plane(&y, w), cb: plane(&u, cw), cr: plane(&v, cw), w, h }, [a, b, c]);
             for rect in [(0usize, 0usize, 5usize, 4usize), (3, 1, 9, 7), (12, 9, 25, 14), (36, 22, 1, 1), (1, 0, 36, 23), (0, 5, 37, 1)] {
                 let (x0, y0, rw, rh) = rect;
                 let mut part = [vec![0u8; rw * rh], vec![0u8; rw * rh], vec![0u8; rw * rh]];
                 let [a, b, c] = &mut part;
-                conv.convert_rect(&Source { y: plane(&y, w), cb: plane(&u, cw), cr: plane(&v, cw), w: w, h: h }, rect, [a, b, c]);
+                conv.convert_rect(&Source { y: plane(&y, w), cb: plane(&u, cw), cr: plane(&v, cw), w, h }, rect, [a, b, c]);
                 for ch_ in 0..3 {
                     for yy in 0..rh {
                         for x in 0..rw {

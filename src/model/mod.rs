@@ -194,6 +194,7 @@ impl Shallow {
 
 /// Either network.
 #[derive(Module, Debug)]
+#[allow(clippy::large_enum_variant)] // one network per process: boxing would buy nothing
 pub enum Net {
     Unet(UNet),
     Shallow(Shallow),

@@ -80,7 +80,7 @@ fn safetensors_bytes(entries: &[Entry], meta: &serde_json::Map<String, serde_jso
         off += e.data.len();
     }
     let mut h = serde_json::to_vec(&header).expect("json");
-    while h.len() % 8 != 0 {
+    while !h.len().is_multiple_of(8) {
         h.push(b' ');
     }
     let mut out = (h.len() as u64).to_le_bytes().to_vec();

@@ -492,6 +492,6 @@ mod tests {
         let c_full = full.channels[1][full.half() * full.size + full.half()];
         let c_trim = t.channels[1][h * t.size + h];
         let gain = c_trim / c_full;
-        assert!(gain >= 1.0 && gain <= 1.0 / (1.0 - 5e-3) + 1e-6, "gain {gain}");
+        assert!((1.0..=1.0 / (1.0 - 5e-3) + 1e-6).contains(&gain), "gain {gain}");
     }
 }

@@ -62,7 +62,7 @@ fn a_model_with_non_finite_weights_is_refused_by_name() {
         }
     });
     save_checkpoint(&dir, &f.write_into(net), Vec::new(), &cfg.model, cfg.seed, 2).unwrap();
-    let e = load_model(&dir.join("model-0000002.safetensors"), &dev).err().expect("refused").to_string();
+    let e = load_model(&dir.join("model-0000002.safetensors"), &dev).expect_err("refused").to_string();
     assert!(e.contains("model-0000002.safetensors") && e.contains("1 weights are not finite"), "{e}");
     std::fs::remove_dir_all(&dir).ok();
 }

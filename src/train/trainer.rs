@@ -254,7 +254,7 @@ impl Trainer {
     pub(super) fn checkpoint_and_stop(&mut self) -> Error {
         let done = self.step;
         self.interrupted = true;
-        let saved = done % self.cfg.output.checkpoint_every == 0;
+        let saved = done.is_multiple_of(self.cfg.output.checkpoint_every);
         let res = if saved {
             Ok(())
         } else {

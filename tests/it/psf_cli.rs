@@ -105,7 +105,7 @@ fn png_strip_is_a_readable_colour_image() {
             for x in x0..x1 {
                 let p = &rgb[(y * w + x) * 3..(y * w + x) * 3 + 3];
                 let s = p.iter().map(|&v| v as u32).sum::<u32>();
-                if s > best.0 && p.iter().any(|&v| v == 255) {
+                if s > best.0 && p.contains(&255) {
                     best = (s, [p[0], p[1], p[2]]);
                 }
             }

@@ -61,7 +61,7 @@ pub fn deblur(width: usize, height: usize, repeats: usize) -> crate::Result<Vec<
                 Arch::Shallow { width } => ("shallow", width),
             };
             std::process::Command::new(python())
-                .arg(&script)
+                .arg(script)
                 .env("TORCH_THREADS", rayon::current_num_threads().to_string())
                 .args(["infer", kind, &w.to_string(), &height.to_string(), &width.to_string(), &repeats.to_string()])
                 .output()

@@ -137,6 +137,8 @@ pub fn conv_forward(x: &T4, weight: &[f32], bias: Option<&[f32]>, cout: usize, k
     let mut y = T4::zeros(n, cout, h, w);
     let yp = Ptr(y.d.as_mut_ptr());
     (0..n * nb).into_par_iter().for_each_init(Vec::new, |col, u| {
+        // The whole Ptr (Send), not its raw field: closures capture fields separately.
+        #[allow(clippy::redundant_locals)]
         let yp = yp;
         let (s, r0) = (u / nb, (u % nb) * rows);
         let r1 = (r0 + rows).min(h);
@@ -303,6 +305,8 @@ pub(super) fn upconv_forward(x: &T4, wt: &[f32], bias: &[f32], cout: usize) -> T
     let mut y = T4::zeros(n, cout, 2 * h, 2 * w);
     let yp = Ptr(y.d.as_mut_ptr());
     (0..n * nb).into_par_iter().for_each_init(Vec::new, |t, u| {
+        // The whole Ptr (Send), not its raw field: closures capture fields separately.
+        #[allow(clippy::redundant_locals)]
         let yp = yp;
         let (s, r0) = (u / nb, (u % nb) * rows);
         let r1 = (r0 + rows).min(h);

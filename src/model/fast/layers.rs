@@ -169,8 +169,7 @@ impl ConvBnAct {
             // dpre = dout * act'(pre); act'(pre) follows the sign of the output.
             let mut sb = 0.0f64;
             let mut sg = 0.0f64;
-            for s in 0..n {
-                let dp = &mut *dps[s];
+            for (s, dp) in dps.iter_mut().enumerate() {
                 let (o, d, xh) = (&out.d[at(s)..][..hw], &dout.d[at(s)..][..hw], &xhat.d[at(s)..][..hw]);
                 let mut b = 0.0f64;
                 let mut g = 0.0f64;
@@ -185,8 +184,7 @@ impl ConvBnAct {
             }
             let k = gamma[ch] * inv[ch];
             let (mb, mg) = ((sb / m) as f32, (sg / m) as f32);
-            for s in 0..n {
-                let dp = &mut *dps[s];
+            for (s, dp) in dps.iter_mut().enumerate() {
                 let xh = &xhat.d[at(s)..][..hw];
                 for i in 0..hw {
                     dp[i] = k * (dp[i] - mb - xh[i] * mg);

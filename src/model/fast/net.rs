@@ -29,6 +29,7 @@ pub(super) struct FShallow {
 }
 
 #[derive(Debug, Clone)]
+#[allow(clippy::large_enum_variant)] // one network per process: boxing would buy nothing
 pub(super) enum Kind {
     Unet(FUnet),
     Shallow(FShallow),
