@@ -23,6 +23,14 @@ pub enum Error {
     /// The command as given cannot do anything (no input found, say): exit code 2.
     #[error("{0}")]
     Usage(String),
+    /// A video or image FFmpeg could not read or write; the cause is kept as the source.
+    #[cfg(feature = "ffmpeg")]
+    #[error("{}", path.display())]
+    Video {
+        path: PathBuf,
+        #[source]
+        source: crate::io::video::VideoError,
+    },
     /// Stopped by SIGINT or SIGTERM at a safe point: what was kept and how to continue. Exit
     /// code 130, the shell's for SIGINT.
     #[error("interrupted: {0}")]
@@ -34,6 +42,14 @@ pub enum Error {
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;
+
+impl Error {
+    /// A video error, naming its file.
+    #[cfg(feature = "ffmpeg")]
+    pub fn video(path: &std::path::Path) -> impl FnOnce(crate::io::video::VideoError) -> Error + '_ {
+        move |source| Error::Video { path: path.to_path_buf(), source }
+    }
+}
 
 impl From<crate::optics::ConfigError> for Error {
     fn from(e: crate::optics::ConfigError) -> Self {

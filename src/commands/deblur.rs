@@ -161,17 +161,16 @@ pub fn video(
     crate::signal::install();
     let t0 = Instant::now();
     remove_stale(output.parent().unwrap_or(Path::new(".")));
-    let name = |p: &Path, e: String| Error::Invalid(format!("{}: {e}", p.display()));
-    let mut reader = VideoReader::open(input).map_err(|e| name(input, e))?;
+    let mut reader = VideoReader::open(input).map_err(Error::video(input))?;
     let (w, h) = (reader.info.width, reader.info.height);
     if lossless && output.extension().and_then(|e| e.to_str()) != Some("mkv") {
-        return Err(name(output, "--lossless writes FFV1, which needs a .mkv output".into()));
+        return Err(Error::Usage(format!("{}: --lossless writes FFV1, which needs a .mkv output", output.display())));
     }
     let tmp = temp_for(output);
-    let mut writer = VideoWriter::create(&tmp, w, h, reader.rate, lossless).map_err(|e| name(output, e))?;
+    let mut writer = VideoWriter::create(&tmp, w, h, reader.rate, lossless).map_err(Error::video(output))?;
     let bar = Bar::new(progress, "deblur", "frames", reader.info.frames_announced);
     let result = (|| -> Result<u64> {
-        while let Some(f) = reader.next_frame().map_err(|e| name(input, e))? {
+        while let Some(f) = reader.next_frame().map_err(Error::video(input))? {
             if crate::signal::interrupted() {
                 return Err(Error::Interrupted(format!(
                     "{}: the unfinished video was removed; run the same command again",
@@ -180,11 +179,11 @@ pub fn video(
             }
             let rgb = to_rgb8(&f, reader.float);
             let out = run_frame(net, &rgb, w, h, tiling);
-            writer.write_rgb8(&out).map_err(|e| name(output, e))?;
+            writer.write_rgb8(&out).map_err(Error::video(output))?;
             bar.inc(1);
         }
         bar.finish();
-        let n = writer.finish().map_err(|e| name(output, e))?;
+        let n = writer.finish().map_err(Error::video(output))?;
         std::fs::rename(&tmp, output).map_err(|e| Error::Io { path: output.to_path_buf(), cause: e })?;
         Ok(n)
     })();
@@ -254,7 +253,7 @@ fn read_image(f: &Path, ext: &str) -> Result<(usize, usize, Vec<u8>)> {
     }
     #[cfg(feature = "ffmpeg")]
     {
-        let (frame, float) = crate::io::video::read_image(f).map_err(bad)?;
+        let (frame, float) = crate::io::video::read_image(f).map_err(Error::video(f))?;
         Ok((frame.width, frame.height, to_rgb8(&frame, float)))
     }
     #[cfg(not(feature = "ffmpeg"))]

@@ -283,12 +283,11 @@ fn side_by_side(path: &Path, w: usize, h: usize, panels: [&[u8]; 3], labels: [St
 
 /// Decodes the frames `first..=last` of a video (stopping early at its end), tagged linear.
 fn read_frames(path: &Path, first: u64, last: u64, curve: Curve) -> Result<Vec<Arc<Frame>>> {
-    let name = |e: String| Error::Invalid(format!("{}: {e}", path.display()));
-    let mut reader = VideoReader::open(path).map_err(name)?;
+    let mut reader = VideoReader::open(path).map_err(Error::video(path))?;
     let mut out = Vec::new();
     let mut i = 0u64;
     while i <= last {
-        let Some(f) = reader.next_frame().map_err(name)? else { break };
+        let Some(f) = reader.next_frame().map_err(Error::video(path))? else { break };
         if i >= first {
             out.push(Arc::new(Frame { curve: Some(curve), ..f }));
         }

@@ -91,8 +91,52 @@ fn depth_of(p: ff::format::Pixel) -> u32 {
     }
 }
 
-fn fmt_err(e: ff::Error) -> String {
-    e.to_string()
+/// Why a video could not be read or written; the caller names the file ([`crate::Error::Video`]).
+#[derive(Debug, thiserror::Error)]
+pub enum VideoError {
+    /// FFmpeg refused: what was being done, and FFmpeg's own error as the source.
+    #[error("{what}")]
+    Ffmpeg {
+        what: String,
+        #[source]
+        source: ff::Error,
+    },
+    /// The file is not what a video must be (no size, damaged, too short...).
+    #[error("{0}")]
+    Invalid(String),
+}
+
+impl VideoError {
+    fn ffmpeg(what: impl Into<String>) -> impl FnOnce(ff::Error) -> VideoError {
+        let what = what.into();
+        move |source| VideoError::Ffmpeg { what, source }
+    }
+
+    /// The message with its causes, one line (for reports that keep text).
+    pub fn chain(&self) -> String {
+        match self {
+            VideoError::Ffmpeg { what, source } => format!("{what}: {source}"),
+            VideoError::Invalid(m) => m.clone(),
+        }
+    }
+}
+
+impl From<ff::Error> for VideoError {
+    fn from(source: ff::Error) -> Self {
+        VideoError::Ffmpeg { what: "FFmpeg failed".into(), source }
+    }
+}
+
+impl From<String> for VideoError {
+    fn from(m: String) -> Self {
+        VideoError::Invalid(m)
+    }
+}
+
+impl From<&str> for VideoError {
+    fn from(m: &str) -> Self {
+        VideoError::Invalid(m.into())
+    }
 }
 
 impl VideoReader {
@@ -100,7 +144,7 @@ impl VideoReader {
     ///
     /// # Errors
     /// A message without the path (the caller names the file): missing, not a video, no decoder.
-    pub fn open(path: &Path) -> Result<VideoReader, String> {
+    pub fn open(path: &Path) -> Result<VideoReader, VideoError> {
         init();
         // `-` or `pipe:0`: a stream on standard input (`ffmpeg ... -f nut - | pipeline generate -`).
         let stdin = path.as_os_str() == "-" || path.as_os_str() == "pipe:0";
@@ -112,15 +156,15 @@ impl VideoReader {
         if path.to_str().is_none() {
             return Err("the file name is not valid UTF-8, which FFmpeg cannot open; rename the file".into());
         }
-        let ictx = ff::format::input(&path).map_err(|e| format!("not a readable video ({})", fmt_err(e)))?;
+        let ictx = ff::format::input(&path).map_err(VideoError::ffmpeg("not a readable video"))?;
         let st = ictx.streams().best(ff::media::Type::Video).ok_or("no video stream")?;
         let stream = st.index();
         let rate = st.avg_frame_rate();
         let fps = if rate.denominator() != 0 { rate.numerator() as f64 / rate.denominator() as f64 } else { 0.0 };
         let announced = st.frames();
-        let mut ctx = ff::codec::context::Context::from_parameters(st.parameters()).map_err(fmt_err)?;
+        let mut ctx = ff::codec::context::Context::from_parameters(st.parameters())?;
         ctx.set_threading(ff::codec::threading::Config::kind(ff::codec::threading::Type::Frame));
-        let decoder = ctx.decoder().video().map_err(|e| format!("no decoder ({})", fmt_err(e)))?;
+        let decoder = ctx.decoder().video().map_err(VideoError::ffmpeg("no decoder"))?;
         let codec = decoder.codec().map(|c| c.name().to_string()).unwrap_or_default();
         let info = InputInfo {
             width: decoder.width() as usize,
@@ -154,7 +198,7 @@ impl VideoReader {
         })
     }
 
-    fn convert(&mut self) -> Result<Frame, String> {
+    fn convert(&mut self) -> Result<Frame, VideoError> {
         let (w, h) = (self.decoded.width(), self.decoded.height());
         let deep = self.bit_depth > 8;
         if let Some((sx, sy, full)) = fast_yuv(self.decoded.format()).filter(|_| !self.force_swscale) {
@@ -200,11 +244,11 @@ impl VideoReader {
                 let flags = ff::software::scaling::Flags::BILINEAR
                     | ff::software::scaling::Flags::ACCURATE_RND
                     | ff::software::scaling::Flags::FULL_CHR_H_INT;
-                let mut sc = ff::software::scaling::Context::get(self.decoded.format(), w, h, target, w, h, flags).map_err(fmt_err)?;
+                let mut sc = ff::software::scaling::Context::get(self.decoded.format(), w, h, target, w, h, flags)?;
                 set_colorspace(&mut sc, &self.decoded);
                 self.scaler = Some(sc);
             }
-            self.scaler.as_mut().expect("scaler set").run(&self.decoded, &mut self.rgb).map_err(fmt_err)?;
+            self.scaler.as_mut().expect("scaler set").run(&self.decoded, &mut self.rgb)?;
         }
         let (w, h) = (w as usize, h as usize);
         let rgb = if direct { &self.decoded } else { &self.rgb };
@@ -233,7 +277,7 @@ impl VideoReader {
     ///
     /// # Errors
     /// A damaged stream, naming the frame number where decoding failed.
-    pub fn next_frame(&mut self) -> Result<Option<Frame>, String> {
+    pub fn next_frame(&mut self) -> Result<Option<Frame>, VideoError> {
         if self.done {
             return Ok(None);
         }
@@ -251,7 +295,8 @@ impl VideoReader {
                             self.frames_decoded - 1,
                             self.info.width,
                             self.info.height
-                        ));
+                        )
+                        .into());
                     }
                     return self.convert().map(Some);
                 }
@@ -260,7 +305,7 @@ impl VideoReader {
                     return Ok(None);
                 }
                 Err(ff::Error::Other { errno }) if errno == ff::util::error::EAGAIN => {}
-                Err(e) => return Err(format!("decoding failed after frame {} ({})", self.frames_decoded, fmt_err(e))),
+                Err(e) => return Err(VideoError::ffmpeg(format!("decoding failed after frame {}", self.frames_decoded))(e)),
             }
             if self.flushed {
                 self.done = true;
@@ -271,15 +316,15 @@ impl VideoReader {
                 Ok(()) => {
                     if packet.stream() == self.stream {
                         if let Err(e) = self.decoder.send_packet(&packet) {
-                            return Err(format!("damaged data after frame {} ({})", self.frames_decoded, fmt_err(e)));
+                            return Err(VideoError::ffmpeg(format!("damaged data after frame {}", self.frames_decoded))(e));
                         }
                     }
                 }
                 Err(ff::Error::Eof) => {
-                    self.decoder.send_eof().map_err(fmt_err)?;
+                    self.decoder.send_eof()?;
                     self.flushed = true;
                 }
-                Err(e) => return Err(format!("reading failed after frame {} ({})", self.frames_decoded, fmt_err(e))),
+                Err(e) => return Err(VideoError::ffmpeg(format!("reading failed after frame {}", self.frames_decoded))(e)),
             }
         }
     }
@@ -362,7 +407,7 @@ impl VideoWriter {
     /// # Errors
     /// No encoder, a container that does not fit, or the file cannot be created (message without
     /// the path; the caller names it).
-    pub fn create(path: &Path, w: usize, h: usize, fps: (i32, i32), lossless: bool) -> Result<VideoWriter, String> {
+    pub fn create(path: &Path, w: usize, h: usize, fps: (i32, i32), lossless: bool) -> Result<VideoWriter, VideoError> {
         VideoWriter::create_as(path, w, h, fps, if lossless { Codec::Ffv1 } else { Codec::H264 })
     }
 
@@ -370,13 +415,13 @@ impl VideoWriter {
     ///
     /// # Errors
     /// As [`VideoWriter::create`].
-    pub fn create_as(path: &Path, w: usize, h: usize, fps: (i32, i32), codec: Codec) -> Result<VideoWriter, String> {
+    pub fn create_as(path: &Path, w: usize, h: usize, fps: (i32, i32), codec: Codec) -> Result<VideoWriter, VideoError> {
         init();
         let mut octx = match codec {
             Codec::Jpeg | Codec::Tiff => ff::format::output_as(&path, "image2"),
             _ => ff::format::output(&path),
         }
-        .map_err(|e| format!("cannot create ({})", fmt_err(e)))?;
+        .map_err(VideoError::ffmpeg("cannot create"))?;
         let global = octx.format().flags().contains(ff::format::Flags::GLOBAL_HEADER);
         let (id, pix) = match codec {
             Codec::Ffv1 => (ff::codec::Id::FFV1, ff::format::Pixel::BGRZ),
@@ -387,7 +432,7 @@ impl VideoWriter {
         };
         let kind = codec;
         let codec = ff::encoder::find(id).ok_or_else(|| format!("no {id:?} encoder in this FFmpeg"))?;
-        let mut enc = ff::codec::context::Context::new_with_codec(codec).encoder().video().map_err(fmt_err)?;
+        let mut enc = ff::codec::context::Context::new_with_codec(codec).encoder().video()?;
         let rate = ff::Rational::new(fps.0.max(1), fps.1.max(1));
         let tb = ff::Rational::new(fps.1.max(1), fps.0.max(1));
         enc.set_width(w as u32);
@@ -411,12 +456,12 @@ impl VideoWriter {
             }
             Codec::Ffv1 | Codec::Tiff => {}
         }
-        let enc = enc.open_with(opts).map_err(|e| format!("cannot open the {id:?} encoder ({})", fmt_err(e)))?;
-        let mut ost = octx.add_stream(codec).map_err(fmt_err)?;
+        let enc = enc.open_with(opts).map_err(VideoError::ffmpeg(format!("cannot open the {id:?} encoder")))?;
+        let mut ost = octx.add_stream(codec)?;
         ost.set_parameters(&enc);
         ost.set_time_base(tb);
         let _ = ost; // the stream's borrow of the context ends here
-        octx.write_header().map_err(|e| format!("cannot write the header ({})", fmt_err(e)))?;
+        octx.write_header().map_err(VideoError::ffmpeg("cannot write the header"))?;
         let stream_tb = octx.stream(0).map(|s| s.time_base()).unwrap_or(tb);
         let scaler = ff::software::scaling::Context::get(
             ff::format::Pixel::RGB24,
@@ -426,8 +471,7 @@ impl VideoWriter {
             w as u32,
             h as u32,
             ff::software::scaling::Flags::BILINEAR | ff::software::scaling::Flags::ACCURATE_RND,
-        )
-        .map_err(fmt_err)?;
+        )?;
         Ok(VideoWriter {
             octx,
             enc,
@@ -442,7 +486,7 @@ impl VideoWriter {
         })
     }
 
-    fn drain(&mut self) -> Result<(), String> {
+    fn drain(&mut self) -> Result<(), VideoError> {
         let mut packet = ff::Packet::empty();
         while self.enc.receive_packet(&mut packet).is_ok() {
             packet.set_stream(0);
@@ -451,7 +495,7 @@ impl VideoWriter {
                 packet.set_duration(1);
             }
             packet.rescale_ts(self.enc_tb, self.stream_tb);
-            packet.write_interleaved(&mut self.octx).map_err(fmt_err)?;
+            packet.write_interleaved(&mut self.octx)?;
         }
         Ok(())
     }
@@ -460,17 +504,17 @@ impl VideoWriter {
     ///
     /// # Errors
     /// Encoding or writing fails.
-    pub fn write_rgb8(&mut self, rgb: &[u8]) -> Result<(), String> {
+    pub fn write_rgb8(&mut self, rgb: &[u8]) -> Result<(), VideoError> {
         assert_eq!(rgb.len(), self.w * self.h * 3);
         let stride = self.rgb.stride(0);
         let data = self.rgb.data_mut(0);
         for y in 0..self.h {
             data[y * stride..y * stride + self.w * 3].copy_from_slice(&rgb[y * self.w * 3..(y + 1) * self.w * 3]);
         }
-        self.scaler.run(&self.rgb, &mut self.out).map_err(fmt_err)?;
+        self.scaler.run(&self.rgb, &mut self.out)?;
         self.out.set_pts(Some(self.next_pts));
         self.next_pts += 1;
-        self.enc.send_frame(&self.out).map_err(fmt_err)?;
+        self.enc.send_frame(&self.out)?;
         self.drain()
     }
 
@@ -478,10 +522,10 @@ impl VideoWriter {
     ///
     /// # Errors
     /// Writing fails.
-    pub fn finish(mut self) -> Result<u64, String> {
-        self.enc.send_eof().map_err(fmt_err)?;
+    pub fn finish(mut self) -> Result<u64, VideoError> {
+        self.enc.send_eof()?;
         self.drain()?;
-        self.octx.write_trailer().map_err(fmt_err)?;
+        self.octx.write_trailer()?;
         Ok(self.next_pts as u64)
     }
 }
@@ -490,7 +534,7 @@ impl VideoWriter {
 ///
 /// # Errors
 /// Unreadable or empty (message without the path).
-pub fn read_image(path: &Path) -> Result<(Frame, bool), String> {
+pub fn read_image(path: &Path) -> Result<(Frame, bool), VideoError> {
     let mut r = VideoReader::open(path)?;
     let f = r.next_frame()?.ok_or("no image in the file")?;
     Ok((f, r.float))
@@ -500,7 +544,7 @@ pub fn read_image(path: &Path) -> Result<(Frame, bool), String> {
 ///
 /// # Errors
 /// No encoder or the file cannot be written (message without the path).
-pub fn write_image(path: &Path, w: usize, h: usize, rgb: &[u8], codec: Codec) -> Result<(), String> {
+pub fn write_image(path: &Path, w: usize, h: usize, rgb: &[u8], codec: Codec) -> Result<(), VideoError> {
     let mut wr = VideoWriter::create_as(path, w, h, (1, 1), codec)?;
     wr.write_rgb8(rgb)?;
     wr.finish().map(|_| ())

@@ -57,7 +57,7 @@ impl Source for Decode {
             let mut reader = match VideoReader::open(path) {
                 Ok(r) => r,
                 Err(e) => {
-                    if !out.send(fail(e)) {
+                    if !out.send(fail(e.chain())) {
                         return Ok(());
                     }
                     continue;
@@ -94,7 +94,7 @@ impl Source for Decode {
                         Some(a) if n < a => break Err(format!("truncated: decoded {n} of the {a} frames the container announces")),
                         _ => break Ok(()),
                     },
-                    Err(e) => break Err(e),
+                    Err(e) => break Err(e.chain()),
                 }
             };
             self.counters.input(&input.path, &reader.info, n);

@@ -36,11 +36,11 @@ pub(super) fn make_clip(path: &std::path::Path, w: usize, h: usize, fps: u32, se
 /// Frames/s of the pipeline's decoder (decode + RGB planes); `swscale`: with swscale's
 /// conversion instead of its own (the path before it had one).
 pub(super) fn own_decode_fps_with(path: &std::path::Path, swscale: bool) -> crate::Result<(f64, u64)> {
-    let mut r = crate::io::video::VideoReader::open(path).map_err(|e| crate::Error::Invalid(format!("{}: {e}", path.display())))?;
+    let mut r = crate::io::video::VideoReader::open(path).map_err(crate::Error::video(path))?;
     r.force_swscale = swscale;
     let t = Instant::now();
     let mut n = 0u64;
-    while r.next_frame().map_err(crate::Error::Invalid)?.is_some() {
+    while r.next_frame().map_err(crate::Error::video(path))?.is_some() {
         n += 1;
     }
     Ok((n as f64 / t.elapsed().as_secs_f64(), n))
