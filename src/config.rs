@@ -397,8 +397,43 @@ fn plan_checked(raw: RawPipeline, table: toml::Table, type_errs: Vec<ConfigError
         .map(|(n, t)| (format!("transforms.{n}"), t.config().inputs()))
         .chain(raw.sinks.iter().map(|(n, s)| (format!("sinks.{n}"), s.config().inputs())))
         .collect();
+    // Stages whose inputs lead back to themselves: named as a cycle, never as fan-out.
+    let input_of: BTreeMap<&str, &str> = edges
+        .iter()
+        .filter(|(_, i)| i.len() == 1)
+        .map(|(k, i)| (k.split_once('.').map_or(k.as_str(), |(_, n)| n), i[0].as_str()))
+        .collect();
+    let mut in_cycle = std::collections::BTreeSet::new();
+    for &start in input_of.keys() {
+        let mut cur = start;
+        for _ in 0..input_of.len() {
+            match input_of.get(cur) {
+                Some(&next) if next == start => {
+                    in_cycle.insert(start);
+                    break;
+                }
+                Some(&next) => cur = next,
+                None => break,
+            }
+        }
+    }
     for (key, inputs) in &edges {
         let short = key.split_once('.').map_or(key.as_str(), |(_, n)| n);
+        if inputs.len() == 1 && inputs[0] == short {
+            errs.push(err(format!("{key}.inputs"), format!("{short:?} names itself as its input; stages form a chain from the source")));
+            continue;
+        }
+        if in_cycle.contains(short) {
+            let mut cycle = vec![short];
+            while let Some(&next) = input_of.get(cycle[cycle.len() - 1]).filter(|n| **n != short) {
+                cycle.push(next);
+            }
+            errs.push(err(
+                format!("{key}.inputs"),
+                format!("{short:?} is in a cycle ({} <- {short}); stages form a chain from the source", cycle.join(" <- ")),
+            ));
+            continue;
+        }
         if inputs.len() != 1 {
             errs.push(err(format!("{key}.inputs"), format!("needs exactly one input (found {}); stages form a chain", inputs.len())));
             continue;
@@ -548,7 +583,7 @@ inputs = ["blur"]
             .replace("inputs = [\"video\"]", "inputs = [\"blur\"]")
             .replace("type = \"shards\"\ninputs = [\"blur\"]", "type = \"shards\"\ninputs = [\"video\"]");
         let e = plan_of(&cyc, &[]).unwrap_err().to_string();
-        assert!(e.contains("not connected"), "{e}");
+        assert!(e.contains("cycle (linear <- blur <- linear)"), "{e}");
         let e = plan_of(
             &GOOD
                 .replace("inputs = [\"blur\"]", "inputs = [\"linear\"]")
@@ -594,5 +629,19 @@ inputs = ["blur"]
         assert!(e.contains("--set transforms.noise.sigma") && e.contains("not a TOML value") && !e.contains("untagged"), "{e}");
         let e = plan_of(&noisy, &["transforms.noise.sigma=abc"]).unwrap_err().to_string();
         assert!(e.contains("transforms.noise.sigma") && e.contains("a number or a range") && !e.contains("untagged"), "{e}");
+    }
+
+    /// A stage that names itself, or stages that feed each other, are named as such on their
+    /// own keys (issue 31: they were "fan-out is not supported" against another stage's key).
+    #[test]
+    fn a_stage_naming_itself_or_a_cycle_is_named_on_its_own_key() {
+        let own = GOOD.replace("inputs = [\"linear\"]", "inputs = [\"blur\"]");
+        let e = plan_of(&own, &[]).unwrap_err().to_string();
+        assert!(e.contains("transforms.blur.inputs") && e.contains("names itself"), "{e}");
+        assert!(!e.contains("fan-out"), "{e}");
+        let cycle = GOOD.replace("inputs = [\"video\"]", "inputs = [\"blur\"]");
+        let e = plan_of(&cycle, &[]).unwrap_err().to_string();
+        assert!(e.contains("transforms.linear.inputs") && e.contains("cycle (linear <- blur <- linear)"), "{e}");
+        assert!(!e.contains("fan-out"), "{e}");
     }
 }

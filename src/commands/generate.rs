@@ -65,7 +65,9 @@ pub const GENERATE_TOML: &str = include_str!("../../pipelines/generate.toml");
 
 fn env_usize(name: &str) -> anyhow::Result<Option<usize>> {
     match std::env::var(name) {
-        Ok(v) if !v.trim().is_empty() => v.trim().parse().map(Some).map_err(|_| anyhow::anyhow!("{name}={v:?} is not a whole number")),
+        Ok(v) if !v.trim().is_empty() => {
+            v.trim().parse().map(Some).map_err(|_| crate::Error::Usage(format!("{name}={v:?} is not a whole number")).into())
+        }
         _ => Ok(None),
     }
 }

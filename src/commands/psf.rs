@@ -22,6 +22,7 @@ pub fn parse_psi_list(s: &str) -> std::result::Result<Vec<f64>, String> {
         let n: usize = parts[2].trim().parse().map_err(|_| format!("count {:?} is not a whole number", parts[2]))?;
         match n {
             0 => return Err("count must be at least 1".into()),
+            n if n > 10_000 => return Err(format!("count {n} is more than 10000 PSFs (each is a full image); ask for fewer")),
             1 => vec![a],
             _ => (0..n).map(|i| a + (b - a) * i as f64 / (n - 1) as f64).collect(),
         }
@@ -237,6 +238,7 @@ mod tests {
         assert_eq!(parse_psi_list("1, 2.5").unwrap(), vec![1.0, 2.5]);
         assert!(parse_psi_list("0:8").unwrap_err().contains("start:stop:count"));
         assert!(parse_psi_list("0:8:x").unwrap_err().contains("count"));
+        assert!(parse_psi_list("0:8:1000000").unwrap_err().contains("more than 10000"));
         assert!(parse_psi_list("a").unwrap_err().contains("not a number"));
         assert!(parse_psi_list("0,99").unwrap_err().contains("out of range"));
     }
