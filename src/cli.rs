@@ -35,6 +35,9 @@ pub enum Command {
     )]
     Generate(crate::commands::generate::GenerateArgs),
     /// Run a pipeline file.
+    #[command(
+        after_help = "Examples:\n  pipeline run pipelines/stills.toml -o out/stills               clips rendered from photographs\n  pipeline run pipelines/frames.toml --set 'sources.video.paths=[\"clip.mp4\"]'   GoPro folder layout\n  pipeline run pipelines/train-stream.toml                       train straight from the generator\n\nA pipeline is [sources.x], [transforms.y] (inputs = [\"x\"]) and [sinks.z]; pipeline validate\nchecks one without running it."
+    )]
     Run(crate::commands::generate::RunArgs),
     /// Train the U-Net or the shallow model on generated shards (Huber loss, Adam).
     #[cfg(feature = "train")]
@@ -64,6 +67,9 @@ pub enum Command {
     )]
     Figure(crate::commands::figure::FigureArgs),
     /// Check pipeline files and report every error, each naming its key.
+    #[command(
+        after_help = "Examples:\n  pipeline validate pipelines/*.toml\n  pipeline validate my.toml --set transforms.blur.window=11\n\nExit code 0 when every file is valid, 2 otherwise (every error of every file is printed)."
+    )]
     Validate(crate::commands::generate::ValidateArgs),
     /// Write a trained model with PyTorch state_dict names (python/pipeline/models.py's UNet and
     /// Shallow), for fine-tuning or deployment in PyTorch.
@@ -73,7 +79,10 @@ pub enum Command {
     )]
     Export(crate::commands::export::ExportArgs),
     /// Measure speed (medians of repeats); not part of the tests.
-    #[command(subcommand)]
+    #[command(
+        subcommand,
+        after_help = "Examples:\n  pipeline bench generate                  beside ffmpeg decode-only on the same clip\n  pipeline bench train --batch 8 --quick   beside PyTorch CPU when torch is installed\n  pipeline bench deblur\n  pipeline bench psf --camera phase_coded\n\nEach prints its baseline measured in the same run, and JSON on stdout."
+    )]
     Bench(crate::commands::bench::BenchCommand),
 }
 

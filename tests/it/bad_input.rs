@@ -188,3 +188,19 @@ fn a_trainer_sink_names_the_keys_written_under_it() {
     assert!(out.contains("sinks.train.val_fraction") && out.contains("sinks.train.checkpoint_every"), "{out}");
     assert!(!out.contains("data.val_fraction") && !out.contains("output.checkpoint_every"), "{out}");
 }
+
+/// Every command's `--help` teaches by example (issue 31), and the top level lists exit codes.
+#[test]
+fn every_command_help_has_examples() {
+    let mut cmds = vec!["psf", "generate", "run", "validate", "bench"];
+    if cfg!(feature = "train") {
+        cmds.extend(["train", "deblur", "eval", "figure", "export"]);
+    }
+    for c in cmds {
+        let o = run(&[c, "--help"]);
+        let out = String::from_utf8_lossy(&o.stdout);
+        assert!(o.status.success() && (out.contains("Examples:") || out.contains("Examples\n")), "{c} --help:\n{out}");
+    }
+    let o = run(&["--help"]);
+    assert!(String::from_utf8_lossy(&o.stdout).contains("130 interrupted"));
+}
