@@ -419,19 +419,17 @@ fn plan_checked(raw: RawPipeline, table: toml::Table, type_errs: Vec<ConfigError
     }
     for (key, inputs) in &edges {
         let short = key.split_once('.').map_or(key.as_str(), |(_, n)| n);
-        if inputs.len() == 1 && inputs[0] == short {
-            errs.push(err(format!("{key}.inputs"), format!("{short:?} names itself as its input; stages form a chain from the source")));
-            continue;
-        }
         if in_cycle.contains(short) {
             let mut cycle = vec![short];
             while let Some(&next) = input_of.get(cycle[cycle.len() - 1]).filter(|n| **n != short) {
                 cycle.push(next);
             }
-            errs.push(err(
-                format!("{key}.inputs"),
-                format!("{short:?} is in a cycle ({} <- {short}); stages form a chain from the source", cycle.join(" <- ")),
-            ));
+            let what = if cycle.len() == 1 {
+                format!("{short:?} names itself as its input")
+            } else {
+                format!("{short:?} is in a cycle ({} <- {short})", cycle.join(" <- "))
+            };
+            errs.push(err(format!("{key}.inputs"), format!("{what}; stages form a chain from the source")));
             continue;
         }
         if inputs.len() != 1 {

@@ -392,21 +392,16 @@ pub fn output_kind(input: &Path, output: &Path) -> Result<OutKind> {
     }
     let images = input.is_dir() || input.to_string_lossy().contains('*');
     let one_image = !images && image_ext(input).is_some();
-    let (what, ok) = match (images, one_image) {
-        (true, _) => ("a folder of images", out == OutKind::Folder),
-        (false, true) => ("an image", out != OutKind::Video),
-        (false, false) => ("a video", out == OutKind::Video),
+    let (what, ok, want) = match (images, one_image) {
+        (true, _) => ("a folder of images", out == OutKind::Folder, "a folder (no extension)"),
+        (false, true) => ("an image", out != OutKind::Video, "an image file or a folder"),
+        (false, false) => ("a video", out == OutKind::Video, "a video file (.mp4, .mkv, ...)"),
     };
     if !ok {
         let was = match out {
             OutKind::Video => "a video",
             OutKind::Image => "an image",
             OutKind::Folder => "a folder",
-        };
-        let want = match (images, one_image) {
-            (true, _) => "a folder (no extension)",
-            (false, true) => "an image file or a folder",
-            (false, false) => "a video file (.mp4, .mkv, ...)",
         };
         return Err(Error::Usage(format!("{}: the input is {what} and this output names {was}; give {want}", output.display())));
     }

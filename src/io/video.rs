@@ -460,7 +460,6 @@ impl VideoWriter {
         let mut ost = octx.add_stream(codec)?;
         ost.set_parameters(&enc);
         ost.set_time_base(tb);
-        let _ = ost; // the stream's borrow of the context ends here
         octx.write_header().map_err(VideoError::ffmpeg("cannot write the header"))?;
         let stream_tb = octx.stream(0).map(|s| s.time_base()).unwrap_or(tb);
         let scaler = ff::software::scaling::Context::get(

@@ -63,6 +63,17 @@ pub struct Averaged {
     pub input: metrics::Quality,
 }
 
+/// The trailing mean of log10 loss over 1% of the run (at least one step): its window, and the
+/// points at each step less `offset`.
+fn running_mean(loss: &[LossPoint], offset: f64) -> (usize, Vec<(f64, f64)>) {
+    let k = (loss.len() / 100).max(1);
+    let points = loss
+        .windows(k)
+        .map(|w| (w[k - 1].step as f64 - offset, (w.iter().map(|p| p.loss).sum::<f64>() / k as f64).max(1e-12).log10()))
+        .collect();
+    (k, points)
+}
+
 /// `curves.png`: the training loss (log10) and the validation PSNR against steps.
 ///
 /// # Errors
@@ -76,30 +87,17 @@ pub fn training_curves(path: &std::path::Path, r: &TrainReport) -> crate::Result
     };
     // Per-step losses of batch 8 scatter over half a decade; the trailing mean of 1% of the run
     // shows the trend through them.
-    let k = (r.loss.len() / 100).max(1);
+    let (k, points) = running_mean(&r.loss, 0.0);
     let mean_name = format!("MEAN OF {k} STEPS");
-    let mean = crate::plot::Series {
-        name: &mean_name,
-        points: r
-            .loss
-            .windows(k)
-            .map(|w| (w[k - 1].step as f64, (w.iter().map(|p| p.loss).sum::<f64>() / k as f64).max(1e-12).log10()))
-            .collect(),
-        color: [1.0, 1.0, 1.0],
-    };
+    let mean = crate::plot::Series { name: &mean_name, points, color: [1.0, 1.0, 1.0] };
     // A fine-tuning run draws the initial model's own training before its step 0, in grey (on
     // the initial run's own data, so its levels need not join this run's).
     let grey = [0.5, 0.5, 0.5];
-    let shift = |step: usize| step as f64 - r.before.as_ref().map_or(0.0, |b| b.steps as f64);
+    let offset = r.before.as_ref().map_or(0.0, |b| b.steps as f64);
     let earlier: Vec<crate::plot::Series> = r
         .before
         .iter()
-        .map(|b| {
-            let kb = (b.loss.len() / 100).max(1);
-            let points =
-                b.loss.windows(kb).map(|w| (shift(w[kb - 1].step), (w.iter().map(|p| p.loss).sum::<f64>() / kb as f64).max(1e-12).log10()));
-            crate::plot::Series { name: "INITIAL MODEL'S RUN", points: points.collect(), color: grey }
-        })
+        .map(|b| crate::plot::Series { name: "INITIAL MODEL'S RUN", points: running_mean(&b.loss, offset).1, color: grey })
         .collect();
     let series: Vec<crate::plot::Series> = [loss, mean].into_iter().chain(earlier).collect();
     crate::plot::panel(&mut c, (10, 10, 880, 300), &format!("LOG10 TRAINING LOSS ({})", r.arch.to_uppercase()), "STEP", &series);
@@ -115,7 +113,7 @@ pub fn training_curves(path: &std::path::Path, r: &TrainReport) -> crate::Result
     };
     let earlier = r.before.iter().map(|b| crate::plot::Series {
         name: "INITIAL MODEL'S RUN",
-        points: b.validation.iter().map(|v| (shift(v.step), v.model.psnr_rgb)).collect(),
+        points: b.validation.iter().map(|v| (v.step as f64 - offset, v.model.psnr_rgb)).collect(),
         color: grey,
     });
     let series: Vec<crate::plot::Series> = [model, input].into_iter().chain(earlier).collect();
