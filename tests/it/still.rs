@@ -75,7 +75,6 @@ fn scores(model: &str, pairs: &[pipeline::train::Pair]) -> (f64, f64) {
 }
 
 #[test]
-#[ignore = "fails with the models shipped now (conventional U-Net 38.57 -> 29.74 dB); the fine-tuned pair in ../runs/*-ft awaits scoring and shipping"]
 fn no_shipped_model_makes_a_still_frame_worse() {
     let (coded, conv) = (still_pairs("phase_coded"), still_pairs("conventional"));
     let (ci, co) = scores("unet16-coded", &coded);
