@@ -32,32 +32,87 @@ pub struct Pair {
     pub gt: Vec<u8>,
 }
 
+/// One sample of a shard before its images are decoded (the trainer's scan decodes only the
+/// samples it keeps: validation samples, and a resumed run's shuffle buffer).
+#[derive(Debug, Clone)]
+pub struct RawPair {
+    pub key: String,
+    /// As [`Pair::source`].
+    pub source: u64,
+    lq: Vec<u8>,
+    gt: Vec<u8>,
+}
+
+impl RawPair {
+    /// Decodes both images, checking that they are PNGs of one size (and of `want`, if given);
+    /// errors name `shard` and the key.
+    ///
+    /// # Errors
+    /// See above.
+    pub fn decode(self, shard: &Path, want: Option<(usize, usize)>) -> Result<Pair> {
+        let RawPair { key, source, lq, gt } = self;
+        let bad = |what: String| Error::Invalid(format!("{}: sample {key}: {what}", shard.display()));
+        let (w, h, lq) = png_io::read_rgb8(&lq).map_err(|e| bad(format!("lq.png is not a readable PNG ({e})")))?;
+        let (gw, gh, gt) = png_io::read_rgb8(&gt).map_err(|e| bad(format!("gt.png is not a readable PNG ({e})")))?;
+        if (w, h) != (gw, gh) {
+            return Err(bad(format!("lq is {w}x{h} but gt is {gw}x{gh}")));
+        }
+        if let Some((ww, wh)) = want {
+            if (w, h) != (ww, wh) {
+                return Err(bad(format!("patch is {w}x{h}, expected {ww}x{wh} like the others")));
+            }
+        }
+        Ok(Pair { key, source, w, h, lq, gt })
+    }
+
+    /// The size both images' PNG headers declare, without decoding them.
+    ///
+    /// # Errors
+    /// A header that is not a PNG's, or two sizes (naming `shard` and the key).
+    pub fn size(&self, shard: &Path) -> Result<(usize, usize)> {
+        let bad = |what: &str| Error::Invalid(format!("{}: sample {}: {what}", shard.display(), self.key));
+        // The signature (8 bytes), then IHDR: length, type, width and height (big-endian).
+        let dims = |b: &[u8]| -> Option<(usize, usize)> {
+            (b.len() >= 24 && b[..8] == *b"\x89PNG\r\n\x1a\n" && &b[12..16] == b"IHDR").then(|| {
+                let be = |i: usize| u32::from_be_bytes([b[i], b[i + 1], b[i + 2], b[i + 3]]) as usize;
+                (be(16), be(20))
+            })
+        };
+        let lq = dims(&self.lq).ok_or_else(|| bad("lq.png is not a readable PNG (no PNG header)"))?;
+        let gt = dims(&self.gt).ok_or_else(|| bad("gt.png is not a readable PNG (no PNG header)"))?;
+        if lq != gt {
+            return Err(bad(&format!("lq is {}x{} but gt is {}x{}", lq.0, lq.1, gt.0, gt.1)));
+        }
+        Ok(lq)
+    }
+}
+
 /// Reads every sample of one shard, checking each: a corrupt PNG, a missing member or a
 /// patch of another size is an error that names the shard and the key.
 ///
 /// # Errors
 /// See above.
 pub fn read_shard(path: &Path, want: Option<(usize, usize)>) -> Result<Vec<Pair>> {
+    read_shard_raw(path)?.into_iter().map(|r| r.decode(path, want)).collect()
+}
+
+/// Reads every sample of one shard without decoding its images: a missing member or a sample
+/// JSON that does not parse is an error naming the shard and the key.
+///
+/// # Errors
+/// See above.
+pub fn read_shard_raw(path: &Path) -> Result<Vec<RawPair>> {
     let f = std::fs::File::open(path).map_err(|e| Error::Io { path: path.to_path_buf(), cause: e })?;
     let members = tar::read_all(std::io::BufReader::new(f)).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
-    let mut out: Vec<Pair> = Vec::new();
-    let mut cur: Option<(String, Option<Vec<u8>>, Option<Vec<u8>>, Option<u64>)> = None;
+    let mut out: Vec<RawPair> = Vec::new();
+    type Cur = (String, Option<Vec<u8>>, Option<Vec<u8>>, Option<u64>);
+    let mut cur: Option<Cur> = None;
     let bad = |key: &str, what: String| Error::Invalid(format!("{}: sample {key}: {what}", path.display()));
-    let finish = |c: (String, Option<Vec<u8>>, Option<Vec<u8>>, Option<u64>), out: &mut Vec<Pair>| -> Result<()> {
+    let finish = |c: Cur, out: &mut Vec<RawPair>| -> Result<()> {
         let (key, lq, gt, idx) = c;
         let lq = lq.ok_or_else(|| bad(&key, "has no lq.png".into()))?;
         let gt = gt.ok_or_else(|| bad(&key, "has no gt.png".into()))?;
-        let (w, h, lq) = png_io::read_rgb8(&lq).map_err(|e| bad(&key, format!("lq.png is not a readable PNG ({e})")))?;
-        let (gw, gh, gt) = png_io::read_rgb8(&gt).map_err(|e| bad(&key, format!("gt.png is not a readable PNG ({e})")))?;
-        if (w, h) != (gw, gh) {
-            return Err(bad(&key, format!("lq is {w}x{h} but gt is {gw}x{gh}")));
-        }
-        if let Some((ww, wh)) = want {
-            if (w, h) != (ww, wh) {
-                return Err(bad(&key, format!("patch is {w}x{h}, expected {ww}x{wh} like the others")));
-            }
-        }
-        out.push(Pair { key, source: idx.unwrap_or(0), w, h, lq, gt });
+        out.push(RawPair { key, source: idx.unwrap_or(0), lq, gt });
         Ok(())
     };
     for (name, bytes) in members {

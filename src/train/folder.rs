@@ -37,6 +37,7 @@ pub(super) fn run_files(dir: &Path) -> Vec<PathBuf> {
             fixed.contains(&n.as_str())
                 || (n.starts_with("model-") && n.ends_with(".safetensors"))
                 || (n.starts_with("optim-") && n.ends_with(".bin"))
+                || (n.starts_with("stream-") && n.ends_with(".json"))
         })
         .collect();
     v.sort();

@@ -4,7 +4,9 @@
 //!
 //! Determinism: the shard order, the shuffle buffer and the augmentations are functions of the
 //! seed and the step, so `--resume` continues with the data order the uninterrupted run would
-//! have had (it replays the sample stream up to the checkpoint).
+//! have had: each checkpoint saves the stream's position (`stream-NNNNNNN.json`: the shard
+//! order left, the shuffle buffer's samples by origin, the generator's state), which a resume
+//! restores after its scan of the shards; without one it replays the stream up to the step.
 //!
 //! Files: `config.rs` (the training file), `data.rs` (the shard stream, its shuffle and split,
 //! augmentation, tensors from patches), `engine.rs` (the fast CPU path or burn's autodiff behind
@@ -76,6 +78,11 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
         return Err(Error::Usage(format!("data.shards: {}: no such file or folder", p.display())));
     }
     let mut t = Trainer::new(cfg, opts)?;
+    // Where the data stream stood at the resumed checkpoint; without it (a checkpoint of an
+    // earlier version, other shards) the data order is replayed up to the step instead.
+    let resume_at = (t.step > 0).then(|| StreamState::read(&t.dir, t.step, &shards, cfg)).flatten();
+    let needed = resume_at.as_ref().map(StreamState::needed).unwrap_or_default();
+    let mut found = std::collections::HashMap::new();
     // Which inputs went where, and the validation samples.
     let mut size = None;
     let mut val = ValPick::new(cfg.validate.max_samples, cfg.seed);
@@ -85,41 +92,74 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
     let stopped = |what: &str| {
         Error::Interrupted(format!("while {what}, before any new step; {} is as it was: run the same command again", cfg.output.dir))
     };
-    for s in &shards {
+    // Only the samples kept are decoded: the validation picks, and a resumed run's buffer. The
+    // others' PNG headers are checked here, their pixels when the stream reaches them.
+    for (i, s) in shards.iter().enumerate() {
         if crate::signal::interrupted() {
             return Err(stopped("reading the shards"));
         }
-        for p in read_shard(s, size)? {
-            size.get_or_insert((p.w, p.h));
-            if !t.admit(&p) {
-                val.push(p);
+        for (j, raw) in crate::io::wds::read_shard_raw(s)?.into_iter().enumerate() {
+            let wh = raw.size(s)?;
+            if let Some((w, h)) = size.filter(|&want| want != wh) {
+                return Err(Error::Invalid(format!(
+                    "{}: sample {}: patch is {}x{}, expected {w}x{h} like the others",
+                    s.display(),
+                    raw.key,
+                    wh.0,
+                    wh.1
+                )));
+            }
+            size = Some(wh);
+            if !t.admit_source(raw.source) {
+                val.push(&raw.key.clone(), (i, raw));
+            } else if needed.contains(&(i as u32, j as u32)) {
+                found.insert((i as u32, j as u32), raw.decode(s, size)?);
             }
         }
     }
-    t.val = val.finish();
+    let val: Vec<Pair> = val.finish().into_iter().map(|(i, raw)| raw.decode(&shards[i], size)).collect::<Result<_>>()?;
+    t.val = val;
     if t.train_inputs.is_empty() {
         return Err(Error::Invalid(format!(
             "data: every input ({:?}) went to validation; lower data.val_fraction or add inputs",
             t.val_inputs
         )));
     }
-    let mut stream = Stream::new(shards, cfg.seed, cfg.data.val_fraction, cfg.data.shuffle_buffer, size);
-    // Replay the data order up to the resumed step, remembering the batches BatchNorm is
-    // recalibrated from.
-    for step in 0..t.step {
-        if crate::signal::interrupted() {
-            return Err(stopped("replaying the data order up to the resumed step"));
-        }
-        let batch: Vec<Pair> = (0..cfg.optim.batch).map(|_| stream.next()).collect::<Result<_>>()?;
-        if step + cfg.validate.bn_batches >= t.step {
+    let keep = if matches!(t.engine, Engine::Fast { .. }) { cfg.validate.bn_batches } else { 0 };
+    let mut stream = Stream::new(shards, cfg.seed, cfg.data.val_fraction, cfg.data.shuffle_buffer, size, keep);
+    if let Some(state) = resume_at {
+        // The buffer and the batches BatchNorm is recalibrated from, as they were.
+        for batch in stream.restore(state, &found)? {
             t.remember(&batch);
         }
+        drop(found);
+        t.resumed_data = Some(format!("restored from {}", StreamState::path(&t.dir, t.step).display()));
+    } else if t.step > 0 {
+        // Replay the data order up to the resumed step, remembering the batches BatchNorm is
+        // recalibrated from.
+        for step in 0..t.step {
+            if crate::signal::interrupted() {
+                return Err(stopped("replaying the data order up to the resumed step"));
+            }
+            let batch = stream.batch(cfg.optim.batch)?;
+            if step + cfg.validate.bn_batches >= t.step {
+                t.remember(&batch);
+            }
+        }
+        t.resumed_data = Some(format!("replayed {} steps (no data position saved with the checkpoint)", t.step));
+    }
+    if let Some(how) = &t.resumed_data {
+        eprintln!("resuming after step {}: the data order {how}", t.step);
     }
     while !t.done() {
-        let batch: Vec<Pair> = (0..cfg.optim.batch).map(|_| stream.next()).collect::<Result<_>>()?;
+        let batch = stream.batch(cfg.optim.batch)?;
+        if t.saves_after(t.step + 1) {
+            t.stream = Some(stream.state());
+        }
         t.train_step(&batch)?;
         if crate::signal::interrupted() {
             // SIGTERM (Slurm preemption, a time limit) or Ctrl-C: keep every finished step.
+            t.stream = Some(stream.state());
             return Err(t.checkpoint_and_stop());
         }
     }

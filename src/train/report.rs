@@ -22,6 +22,10 @@ pub struct TrainReport {
     pub parameters: usize,
     pub steps: usize,
     pub resumed_from: Option<usize>,
+    /// How the resumed run found its place in the data: "restored from stream-NNNNNNN.json" or
+    /// "replayed N steps".
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub resumed_data: Option<String>,
     /// Stopped by SIGINT or SIGTERM; `steps` were done and checkpointed.
     pub interrupted: bool,
     pub seconds: f64,

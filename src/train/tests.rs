@@ -17,6 +17,7 @@ fn the_loss_curve_carries_its_running_mean() {
         parameters: 1,
         steps: 2000,
         resumed_from: None,
+        resumed_data: None,
         interrupted: false,
         seconds: 1.0,
         patches_per_s: 1.0,
@@ -72,7 +73,10 @@ fn validation_samples_spread_over_the_held_out_inputs_whatever_their_order() {
     let pair = |src: u64, i: usize| Pair { key: format!("clip{src}_{i:06}"), source: src, w: 1, h: 1, lq: vec![0; 3], gt: vec![0; 3] };
     let pick = |order: &mut dyn Iterator<Item = (u64, usize)>| {
         let mut v = ValPick::new(16, 0);
-        order.for_each(|(s, i)| v.push(pair(s, i)));
+        order.for_each(|(s, i)| {
+            let p = pair(s, i);
+            v.push(&p.key.clone(), p)
+        });
         v.finish().into_iter().map(|p| p.key).collect::<std::collections::BTreeSet<_>>()
     };
     // Four inputs of 100 samples each, in shard order: the first 16 would all be clip0's.

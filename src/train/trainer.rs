@@ -24,6 +24,11 @@ pub struct Trainer {
     /// The folder's `.train.lock`, held until the run ends.
     pub(super) _lock: std::fs::File,
     pub(super) bar: crate::progress::Bar,
+    /// The data stream's position after the batch of the step in progress, set by [`train`]
+    /// before a step that checkpoints; saved beside the checkpoint.
+    pub(super) stream: Option<StreamState>,
+    /// How a resumed run found its place in the data (restored or replayed), for the report.
+    pub(super) resumed_data: Option<String>,
 }
 
 impl Trainer {
@@ -157,6 +162,8 @@ impl Trainer {
             t_train: Instant::now(),
             _lock: lock,
             bar,
+            stream: None,
+            resumed_data: None,
         })
     }
 
@@ -168,11 +175,16 @@ impl Trainer {
     /// Files a sample under training or validation by its source input; true if it is for
     /// training.
     pub fn admit(&mut self, p: &Pair) -> bool {
-        if is_validation(self.cfg.seed, p.source, self.cfg.data.val_fraction) {
-            self.val_inputs.insert(p.source);
+        self.admit_source(p.source)
+    }
+
+    /// [`Trainer::admit`] by the sample's source input.
+    pub fn admit_source(&mut self, source: u64) -> bool {
+        if is_validation(self.cfg.seed, source, self.cfg.data.val_fraction) {
+            self.val_inputs.insert(source);
             false
         } else {
-            self.train_inputs.insert(p.source);
+            self.train_inputs.insert(source);
             true
         }
     }
@@ -222,20 +234,19 @@ impl Trainer {
         self.losses.push(LossPoint { step: step + 1, loss: lv, lr });
         self.step += 1;
         let done = self.step;
-        let (validate, save) = (
-            (done.is_multiple_of(cfg.validate.every) || done == self.end) && !self.val.is_empty(),
-            done.is_multiple_of(cfg.output.checkpoint_every) || done == self.end,
-        );
+        let (validate, save) =
+            ((done.is_multiple_of(cfg.validate.every) || done == self.end) && !self.val.is_empty(), self.saves_after(done));
         self.remember(batch);
         if validate || save {
             self.recalibrate();
         }
-        let cfg = &self.cfg;
         if validate {
             let (m, i) = self.engine.evaluate(&self.val);
             self.vals.push(ValPoint { step: done, model: m, input: i });
         }
         if save {
+            self.save_stream(done)?;
+            let cfg = &self.cfg;
             save_checkpoint(&self.dir, &self.engine.net(), self.engine.optim_bytes()?, &cfg.model, cfg.seed, done)?;
             self.write_report()?;
         }
@@ -249,6 +260,21 @@ impl Trainer {
         Ok(())
     }
 
+    /// True if the step that ends at `done` writes a checkpoint.
+    pub fn saves_after(&self, done: usize) -> bool {
+        done.is_multiple_of(self.cfg.output.checkpoint_every) || done == self.end
+    }
+
+    /// Writes the data stream's position for the checkpoint of step `done`, before the
+    /// checkpoint itself (so `latest.json` never names a step whose position is missing because
+    /// of a crash between them; a missing one only means a replay).
+    fn save_stream(&mut self, done: usize) -> Result<()> {
+        let Some(state) = self.stream.take() else { return Ok(()) };
+        // A shard path that is not UTF-8 cannot go into JSON: that run replays on resume.
+        let Ok(bytes) = serde_json::to_vec(&state) else { return Ok(()) };
+        write_atomic(&StreamState::path(&self.dir, done), |w| w.write_all(&bytes))
+    }
+
     /// Saves a checkpoint at the current step (unless one was just saved) and the report; the
     /// error to stop with, which says how to continue.
     pub(super) fn checkpoint_and_stop(&mut self) -> Error {
@@ -259,8 +285,8 @@ impl Trainer {
             Ok(())
         } else {
             self.recalibrate();
-            self.engine
-                .optim_bytes()
+            self.save_stream(done)
+                .and_then(|()| self.engine.optim_bytes())
                 .and_then(|o| save_checkpoint(&self.dir, &self.engine.net(), o, &self.cfg.model, self.cfg.seed, done).map(|_| ()))
         }
         .and_then(|()| self.write_report().map(|_| ()));
@@ -278,6 +304,7 @@ impl Trainer {
             parameters: self.engine.num_params(),
             steps: self.step,
             resumed_from: (self.start > 0).then_some(self.start),
+            resumed_data: self.resumed_data.clone(),
             interrupted: self.interrupted,
             seconds: self.t0.elapsed().as_secs_f64(),
             patches_per_s: ((self.step - self.start) * self.cfg.optim.batch) as f64 / self.t_train.elapsed().as_secs_f64().max(1e-9),

@@ -116,15 +116,37 @@ fn validation_is_held_apart_by_input_never_by_patch() {
 #[test]
 fn save_then_load_gives_identical_outputs_and_resume_matches_an_uninterrupted_run() {
     let shards = tiny_shards("train_resume_shards");
-    let (a, b) = (scratch("train_resume_a"), scratch("train_resume_b"));
-    let ra = train(&config(&shards, &a, ""), &opts(Some(6), false)).unwrap();
+    let (a, b, c) = (scratch("train_resume_a"), scratch("train_resume_b"), scratch("train_resume_c"));
+    // 12 steps of 4 from about 24 training samples: the resumes fall inside the first and the
+    // second pass over the shards.
+    let ra = train(&config(&shards, &a, ""), &opts(Some(12), false)).unwrap();
+    assert_eq!(ra.resumed_data, None);
     train(&config(&shards, &b, ""), &opts(Some(3), false)).unwrap();
-    let rb = train(&config(&shards, &b, ""), &opts(Some(6), true)).unwrap();
+    let rb = train(&config(&shards, &b, ""), &opts(Some(7), true)).unwrap();
+    // Each checkpoint saved the data stream's position, so the resume did not replay (issue 30).
+    assert!(b.join("stream-0000003.json").exists() && b.join("stream-0000007.json").exists());
+    assert!(
+        rb.resumed_data.as_deref().is_some_and(|d| d.starts_with("restored from") && d.ends_with("stream-0000003.json")),
+        "{:?}",
+        rb.resumed_data
+    );
+    let rb = train(&config(&shards, &b, ""), &opts(Some(12), true)).unwrap();
+    assert!(rb.resumed_data.as_deref().is_some_and(|d| d.ends_with("stream-0000007.json")), "{:?}", rb.resumed_data);
+    // Without a saved position (a checkpoint of an earlier version) the resume replays the data
+    // order up to its step, to the same weights.
+    train(&config(&shards, &c, ""), &opts(Some(5), false)).unwrap();
+    for f in files(&c).into_iter().filter(|f| f.starts_with("stream-")) {
+        std::fs::remove_file(c.join(f)).unwrap();
+    }
+    let rc = train(&config(&shards, &c, ""), &opts(Some(12), true)).unwrap();
+    assert_eq!(rc.resumed_data.as_deref(), Some("replayed 5 steps (no data position saved with the checkpoint)"));
     // The resumed run's report keeps the whole history, the same as the uninterrupted one's.
     let steps = |r: &pipeline::train::TrainReport| r.loss.iter().map(|p| p.step).collect::<Vec<_>>();
-    assert_eq!(steps(&rb), vec![1, 2, 3, 4, 5, 6]);
-    for (p, q) in ra.loss.iter().zip(&rb.loss) {
-        assert!((p.loss - q.loss).abs() <= 1e-6 * p.loss.abs(), "step {}: {} vs {}", p.step, p.loss, q.loss);
+    assert_eq!(steps(&rb), (1..=12).collect::<Vec<_>>());
+    for r in [&rb, &rc] {
+        for (p, q) in ra.loss.iter().zip(&r.loss) {
+            assert_eq!(p.loss, q.loss, "step {}: {} vs {}", p.step, p.loss, q.loss);
+        }
     }
     {
         use std::os::unix::fs::PermissionsExt;
@@ -132,17 +154,18 @@ fn save_then_load_gives_identical_outputs_and_resume_matches_an_uninterrupted_ru
         assert_eq!(mode & 0o044, 0o044, "checkpoints readable by group and others: {mode:o}");
     }
     let csv = std::fs::read_to_string(b.join("history.csv")).unwrap();
-    assert_eq!(csv.lines().count(), 7, "header and six steps:\n{csv}");
+    assert_eq!(csv.lines().count(), 13, "header and twelve steps:\n{csv}");
     // The steps before the resume went through report.json and back without losing a digit.
     let csv_a = std::fs::read_to_string(a.join("history.csv")).unwrap();
     assert_eq!(csv.lines().take(3).collect::<Vec<_>>(), csv_a.lines().take(3).collect::<Vec<_>>());
     assert!(csv.starts_with("step,lr,loss,"));
-    let (oa, ob) = (outputs(&a.join("model-0000006.safetensors")), outputs(&b.join("model-0000006.safetensors")));
-    let worst = oa.iter().zip(&ob).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
-    assert!(worst < 1e-5, "resumed weights differ: {worst}");
+    // The same weights, bit for bit, whether the data order was restored or replayed.
+    let oa = outputs(&a.join("model-0000012.safetensors"));
+    assert_eq!(outputs(&b.join("model-0000012.safetensors")), oa, "resumed (restored) weights differ");
+    assert_eq!(outputs(&c.join("model-0000012.safetensors")), oa, "resumed (replayed) weights differ");
     // Loading twice gives the same numbers (and they are not the untrained identity); the run's
     // folder stands for its latest checkpoint, as a shipped model's folder does.
-    assert_eq!(outputs(&a.join("model-0000006.safetensors")), oa);
+    assert_eq!(outputs(&a.join("model-0000012.safetensors")), oa);
     assert_eq!(outputs(&a), oa);
     let x = probe(&Device::flex()).into_data().try_to_vec::<f32>().unwrap();
     assert!(oa.iter().zip(&x).any(|(p, q)| (p - q).abs() > 1e-4));
