@@ -18,8 +18,9 @@ pub enum Error {
     /// A pipeline file that does not parse or has an unknown key.
     #[error("{0}")]
     ConfigText(String),
-    #[error("{0} input(s) failed; see report.json")]
-    InputsFailed(usize),
+    /// Some inputs failed (each already named on stderr); the rest were done: exit code 1.
+    #[error("{n} input(s) failed; {} lists them", report.display())]
+    InputsFailed { n: usize, report: PathBuf },
     /// The command as given cannot do anything (no input found, say): exit code 2.
     #[error("{0}")]
     Usage(String),

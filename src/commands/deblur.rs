@@ -456,6 +456,11 @@ pub fn command(a: DeblurArgs) -> anyhow::Result<()> {
     if same {
         return Err(Error::Usage(format!("{}: the output is the input; choose another output path", out.display())).into());
     }
+    // A path that names nothing (and is no glob) is a usage error, found before anything is
+    // made: it used to leave an empty folder named like the output image.
+    if !input.to_string_lossy().contains('*') && std::fs::symlink_metadata(&input).is_err() && input != Path::new("-") {
+        return Err(Error::Usage(format!("{}: no such file or folder", input.display())).into());
+    }
     let kind = output_kind(&input, &out)?;
     let (table, origin) = file.load(crate::commands::deblur::DEBLUR_TOML, "pipelines/deblur.toml")?;
     let mut d = crate::commands::deblur::DeblurFile::from_table(table, &origin)?.deblur;
@@ -487,18 +492,22 @@ pub fn command(a: DeblurArgs) -> anyhow::Result<()> {
         ))
         .into());
     }
-    eprintln!(
-        "{} frames of {}x{} in {:.1} s ({:.2} frames/s) with {} -> {}",
-        r.frames,
-        r.width,
-        r.height,
-        r.seconds,
-        r.frames_per_s,
-        r.model,
-        out.display()
-    );
+    if r.frames == 0 && !r.failed.is_empty() {
+        eprintln!("nothing deblurred with {} -> {}", r.model, out.display());
+    } else {
+        eprintln!(
+            "{} frames of {}x{} in {:.1} s ({:.2} frames/s) with {} -> {}",
+            r.frames,
+            r.width,
+            r.height,
+            r.seconds,
+            r.frames_per_s,
+            r.model,
+            out.display()
+        );
+    }
     if !r.failed.is_empty() {
-        return Err(crate::Error::InputsFailed(r.failed.len()).into());
+        return Err(crate::Error::InputsFailed { n: r.failed.len(), report: rp }.into());
     }
     Ok(())
 }

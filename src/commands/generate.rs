@@ -133,7 +133,7 @@ fn run_plan(table: toml::Table, origin: &crate::config::Origin, out: Option<&Pat
         for f in &r.inputs_failed {
             eprintln!("failed: {}", f.error);
         }
-        return Err(crate::Error::InputsFailed(r.inputs_failed.len()).into());
+        return Err(crate::Error::InputsFailed { n: r.inputs_failed.len(), report: o.out_dir.join("report.json") }.into());
     }
     Ok(())
 }

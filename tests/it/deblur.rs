@@ -101,6 +101,63 @@ fn bad_paths_are_refused_and_the_input_is_untouched() {
     assert!(!o.status.success() && stderr(&o).contains("deblur.overlap"), "{}", stderr(&o));
     assert!(std::fs::read(&input).unwrap() == before);
     assert!(!d.join("o.mp4").exists());
+    // An input that does not exist: a usage error naming it, and nothing made (it used to leave
+    // an empty folder named like the output image and say "0 frames of 0x0").
+    let o = run(&["deblur", d.join("missing.png").to_str().unwrap(), "-o", d.join("m.png").to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("missing.png: no such file or folder"), "{}", stderr(&o));
+    assert!(!d.join("m.png").exists() && !d.join("m.png.report.json").exists());
+    // A 68-byte PNG declaring 100000x100000 pixels is refused by name before any allocation
+    // (exit 1, the report named); inside a folder the other images are still done.
+    let huge = d.join("huge.png");
+    let chunk = |t: &[u8], data: &[u8]| {
+        let mut c = (data.len() as u32).to_be_bytes().to_vec();
+        let body = [t, data].concat();
+        c.extend_from_slice(&body);
+        c.extend_from_slice(&crc32(&body).to_be_bytes());
+        c
+    };
+    let mut ihdr = [100_000u32.to_be_bytes(), 100_000u32.to_be_bytes()].concat();
+    ihdr.extend_from_slice(&[8, 2, 0, 0, 0]);
+    std::fs::write(
+        &huge,
+        [
+            &b"\x89PNG\r\n\x1a\n"[..],
+            &chunk(b"IHDR", &ihdr),
+            &chunk(b"IDAT", &[0x78, 0x9c, 0x63, 0x60, 0x80, 0x01, 0x00, 0x00, 0x0a, 0x00, 0x01]),
+            &chunk(b"IEND", &[]),
+        ]
+        .concat(),
+    )
+    .unwrap();
+    let o = run(&["deblur", huge.to_str().unwrap(), "-o", d.join("h.png").to_str().unwrap()]);
+    let e = stderr(&o);
+    assert_eq!(o.status.code(), Some(1), "{e}");
+    assert!(
+        e.contains("huge.png: declares 100000x100000 pixels")
+            && e.contains("nothing deblurred")
+            && e.contains("h.png.report.json lists them"),
+        "{e}"
+    );
+    let folder = d.join("folder");
+    std::fs::create_dir_all(&folder).unwrap();
+    std::fs::copy(&huge, folder.join("a.png")).unwrap();
+    std::fs::copy(concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/chelsea-160x128.png"), folder.join("b.png")).unwrap();
+    let o = run(&["deblur", folder.to_str().unwrap(), "-o", d.join("fo").to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(d.join("fo/b.png").exists() && !d.join("fo/a.png").exists() && d.join("fo/report.json").exists());
+}
+
+/// CRC-32 (PNG's polynomial), for hand-made PNG chunks.
+fn crc32(b: &[u8]) -> u32 {
+    let mut c = !0u32;
+    for &x in b {
+        c ^= x as u32;
+        for _ in 0..8 {
+            c = if c & 1 == 1 { (c >> 1) ^ 0xEDB8_8320 } else { c >> 1 };
+        }
+    }
+    !c
 }
 
 #[test]
