@@ -238,6 +238,14 @@ impl Net {
         net
     }
 
+    /// The number of trained weights: burn's `num_params` also counts BatchNorm's running
+    /// statistics, which are not weights.
+    pub fn trainable_params(&self) -> usize {
+        let mut n = 0;
+        crate::model::fast::FastNet::from_net(self).params(&mut |p, _| n += p.len());
+        n
+    }
+
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         match self {
             Net::Unet(m) => m.forward(x),
@@ -310,5 +318,14 @@ mod tests {
         // The shallow model has about 2% of that (paper: "just 2% of the weights").
         let s = Shallow::new(32, &dev()).num_params();
         assert!((s as f64 / n as f64) < 0.03, "{s} vs {n}");
+    }
+
+    #[test]
+    fn the_parameter_count_leaves_out_batchnorms_running_statistics() {
+        // U-Net 16: 928,083 values in its file, of which 1,984 are BatchNorm's running mean and
+        // variance (two per channel of each of its 992 BatchNorm channels).
+        let net = Net::new(Arch::Unet { base: 16 }, &dev());
+        assert_eq!(net.num_params(), 928_083);
+        assert_eq!(net.trainable_params(), 926_099);
     }
 }

@@ -69,8 +69,8 @@ impl Engine {
 
     pub(super) fn num_params(&self) -> usize {
         match self {
-            Engine::Burn { model, .. } => model.num_params(),
-            Engine::Fast { template, .. } => template.num_params(),
+            Engine::Burn { model, .. } => model.trainable_params(),
+            Engine::Fast { template, .. } => template.trainable_params(),
         }
     }
 

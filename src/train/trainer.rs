@@ -126,7 +126,13 @@ impl Trainer {
         let engine = if fast {
             let adam = match optim_bytes {
                 Some((path, b)) => Adam::from_bytes(&b).map_err(|e| {
-                    Error::Invalid(format!("{}: {e} (a checkpoint of optim.engine = \"burn\" resumes with that engine)", path.display()))
+                    // The hint fits the cause: a fast-engine file that is damaged, or another engine's.
+                    let hint = if b.starts_with(br#"{"format":"pipeline-adam-1""#) {
+                        "the file is damaged or truncated; the checkpoints before it are whole files of their own"
+                    } else {
+                        "a checkpoint of optim.engine = \"burn\" resumes with that engine"
+                    };
+                    Error::Invalid(format!("{}: {e} ({hint})", path.display()))
                 })?,
                 None => Adam::default(),
             };

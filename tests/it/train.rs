@@ -448,3 +448,20 @@ fn shards_that_match_nothing_and_a_missing_config_are_usage_errors() {
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(stderr(&o).contains("absent.toml") && stderr(&o).contains("no such configuration file"), "{}", stderr(&o));
 }
+
+/// A damaged optimizer file is called damaged (issue 31: it got a hint about optim.engine =
+/// "burn", which has nothing to do with it); another engine's file still gets that hint.
+#[test]
+fn a_damaged_optimizer_file_is_called_damaged() {
+    let shards = tiny_shards("train_bad_optim_shards");
+    let out = scratch("train_bad_optim");
+    train(&config(&shards, &out, ""), &opts(Some(3), false)).unwrap();
+    let optim = out.join("optim-0000003.bin");
+    let bytes = std::fs::read(&optim).unwrap();
+    std::fs::write(&optim, &bytes[..bytes.len() - 100]).unwrap();
+    let e = train(&config(&shards, &out, ""), &opts(Some(6), true)).err().expect("refused").to_string();
+    assert!(e.contains("optim-0000003.bin") && e.contains("damaged or truncated") && !e.contains("burn"), "{e}");
+    std::fs::write(&optim, b"\x00\x01 not json\n").unwrap();
+    let e = train(&config(&shards, &out, ""), &opts(Some(6), true)).err().expect("refused").to_string();
+    assert!(e.contains("optim-0000003.bin") && e.contains("optim.engine = \"burn\""), "{e}");
+}

@@ -92,7 +92,7 @@ pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize, with_bu
     let threads = rayon::current_num_threads();
     let mut out = Vec::new();
     for &arch in archs {
-        let parameters = crate::model::Net::new(arch, &burn::tensor::Device::flex()).num_params();
+        let parameters = crate::model::Net::new(arch, &burn::tensor::Device::flex()).trainable_params();
         let torch_row: Option<serde_json::Value> = script.as_ref().and_then(|script| {
             let (kind, width) = match arch {
                 crate::model::Arch::Unet { base } => ("unet", base),
