@@ -174,12 +174,40 @@ pub fn load(path: &Path, sets: &[String]) -> Result<toml::Table, crate::Error> {
     parse(&text, &path.display().to_string(), sets)
 }
 
+/// A TOML syntax error as the `toml` crate words it, with the line it quotes cut to 80
+/// characters around the error: a file of one 600 KB line (deeply nested arrays, say) is
+/// reported in a few lines, not echoed whole.
+pub fn toml_error(e: &toml::de::Error, text: &str) -> String {
+    const HALF: usize = 40;
+    let Some(span) = e.span().filter(|s| s.start <= text.len() && text.is_char_boundary(s.start)) else {
+        return e.to_string().trim().to_string();
+    };
+    let before = &text[..span.start];
+    let line_no = before.matches('\n').count() + 1;
+    let start = before.rfind('\n').map_or(0, |i| i + 1);
+    let end = text[start..].find('\n').map_or(text.len(), |i| start + i);
+    let line: Vec<char> = text[start..end].trim_end_matches('\r').chars().collect();
+    let col = text[start..span.start].chars().count();
+    let (from, to) = (col.saturating_sub(HALF), (col + HALF).min(line.len()));
+    let pre = if from > 0 { "..." } else { "" };
+    let post = if to < line.len() { "..." } else { "" };
+    let snippet: String = line[from.min(to)..to].iter().collect();
+    let gutter = " ".repeat(line_no.to_string().len());
+    format!(
+        "TOML parse error at line {line_no}, column {}\n{gutter} |\n{line_no} | {pre}{snippet}{post}\n{gutter} | {}^\n{}",
+        col + 1,
+        " ".repeat(pre.len() + col - from.min(col)),
+        e.message().trim()
+    )
+}
+
 /// As [`load`], from text.
 ///
 /// # Errors
 /// See [`load`].
 pub fn parse(text: &str, origin: &str, sets: &[String]) -> Result<toml::Table, crate::Error> {
-    let mut table: toml::Table = toml::from_str(text).map_err(|e| crate::Error::ConfigText(format!("{origin}: {e}")))?;
+    let mut table: toml::Table =
+        toml::from_str(text).map_err(|e| crate::Error::ConfigText(format!("{origin}: {}", toml_error(&e, text))))?;
     apply_sets(&mut table, sets).map_err(crate::Error::ConfigText)?;
     Ok(table)
 }
@@ -493,6 +521,19 @@ fn plan_checked(raw: RawPipeline, table: toml::Table, type_errs: Vec<ConfigError
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_syntax_error_on_a_huge_line_is_quoted_in_a_few_lines() {
+        // Issue 31: 100,000 nested arrays were echoed as one 200 KB line.
+        let deep = format!("seed = 1\na = {}{}\n", "[".repeat(100_000), "]".repeat(100_000));
+        let e = parse(&deep, "deep.toml", &[]).unwrap_err().to_string();
+        assert!(e.len() < 400, "{} bytes: {}", e.len(), &e[..400.min(e.len())]);
+        assert!(e.starts_with("deep.toml: TOML parse error at line 2, column "), "{e}");
+        assert!(e.contains("recursion"), "{e}");
+        // A short line is quoted whole, the caret under the error.
+        let e = parse("seed = 1\nx = = 2\n", "f.toml", &[]).unwrap_err().to_string();
+        assert!(e.contains("2 | x = = 2\n  |     ^"), "{e}");
+    }
 
     const GOOD: &str = r#"
 seed = 3

@@ -87,7 +87,6 @@ pub(super) fn time_fast(arch: crate::model::Arch, batch: usize, repeats: usize) 
 /// same architectures with the same number of threads when torch is installed
 /// (`benches/torch_models.py`).
 pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize, with_burn: bool) -> crate::Result<Vec<ModelSpeed>> {
-    use burn::module::Module;
     let script = torch_script();
     let threads = rayon::current_num_threads();
     let mut out = Vec::new();
