@@ -459,9 +459,9 @@ fn a_damaged_optimizer_file_is_called_damaged() {
     let optim = out.join("optim-0000003.bin");
     let bytes = std::fs::read(&optim).unwrap();
     std::fs::write(&optim, &bytes[..bytes.len() - 100]).unwrap();
-    let e = train(&config(&shards, &out, ""), &opts(Some(6), true)).err().expect("refused").to_string();
+    let e = train(&config(&shards, &out, ""), &opts(Some(6), true)).expect_err("refused").to_string();
     assert!(e.contains("optim-0000003.bin") && e.contains("damaged or truncated") && !e.contains("burn"), "{e}");
     std::fs::write(&optim, b"\x00\x01 not json\n").unwrap();
-    let e = train(&config(&shards, &out, ""), &opts(Some(6), true)).err().expect("refused").to_string();
+    let e = train(&config(&shards, &out, ""), &opts(Some(6), true)).expect_err("refused").to_string();
     assert!(e.contains("optim-0000003.bin") && e.contains("optim.engine = \"burn\""), "{e}");
 }
