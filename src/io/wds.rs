@@ -54,23 +54,16 @@ impl RawPair {
         let bad = |what: String| Error::Invalid(format!("{}: sample {key}: {what}", shard.display()));
         let (w, h, lq) = png_io::read_rgb8(&lq).map_err(|e| bad(format!("lq.png is not a readable PNG ({e})")))?;
         let (gw, gh, gt) = png_io::read_rgb8(&gt).map_err(|e| bad(format!("gt.png is not a readable PNG ({e})")))?;
-        if (w, h) != (gw, gh) {
-            return Err(bad(format!("lq is {w}x{h} but gt is {gw}x{gh}")));
-        }
-        if let Some((ww, wh)) = want {
-            if (w, h) != (ww, wh) {
-                return Err(bad(format!("patch is {w}x{h}, expected {ww}x{wh} like the others")));
-            }
-        }
+        let (w, h) = same_size((w, h), (gw, gh), want).map_err(bad)?;
         Ok(Pair { key, source, w, h, lq, gt })
     }
 
-    /// The size both images' PNG headers declare, without decoding them.
+    /// The size both images' PNG headers declare (and `want`, if given), without decoding them.
     ///
     /// # Errors
     /// A header that is not a PNG's, or two sizes (naming `shard` and the key).
-    pub fn size(&self, shard: &Path) -> Result<(usize, usize)> {
-        let bad = |what: &str| Error::Invalid(format!("{}: sample {}: {what}", shard.display(), self.key));
+    pub fn size(&self, shard: &Path, want: Option<(usize, usize)>) -> Result<(usize, usize)> {
+        let bad = |what: String| Error::Invalid(format!("{}: sample {}: {what}", shard.display(), self.key));
         // The signature (8 bytes), then IHDR: length, type, width and height (big-endian).
         let dims = |b: &[u8]| -> Option<(usize, usize)> {
             (b.len() >= 24 && b[..8] == *b"\x89PNG\r\n\x1a\n" && &b[12..16] == b"IHDR").then(|| {
@@ -78,12 +71,20 @@ impl RawPair {
                 (be(16), be(20))
             })
         };
-        let lq = dims(&self.lq).ok_or_else(|| bad("lq.png is not a readable PNG (no PNG header)"))?;
-        let gt = dims(&self.gt).ok_or_else(|| bad("gt.png is not a readable PNG (no PNG header)"))?;
-        if lq != gt {
-            return Err(bad(&format!("lq is {}x{} but gt is {}x{}", lq.0, lq.1, gt.0, gt.1)));
-        }
-        Ok(lq)
+        let lq = dims(&self.lq).ok_or_else(|| bad("lq.png is not a readable PNG (no PNG header)".into()))?;
+        let gt = dims(&self.gt).ok_or_else(|| bad("gt.png is not a readable PNG (no PNG header)".into()))?;
+        same_size(lq, gt, want).map_err(bad)
+    }
+}
+
+/// The size of a pair whose images measure `lq` and `gt`: one size, and `want` if given.
+fn same_size(lq: (usize, usize), gt: (usize, usize), want: Option<(usize, usize)>) -> std::result::Result<(usize, usize), String> {
+    if lq != gt {
+        return Err(format!("lq is {}x{} but gt is {}x{}", lq.0, lq.1, gt.0, gt.1));
+    }
+    match want {
+        Some(w) if w != lq => Err(format!("patch is {}x{}, expected {}x{} like the others", lq.0, lq.1, w.0, w.1)),
+        _ => Ok(lq),
     }
 }
 

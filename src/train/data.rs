@@ -177,12 +177,7 @@ impl Stream {
     /// The next batch of `n` samples, remembering the latest `keep` batches' origins.
     pub(super) fn batch(&mut self, n: usize) -> Result<Vec<Pair>> {
         let (origins, batch): (Vec<Origin>, Vec<Pair>) = (0..n).map(|_| self.take()).collect::<Result<Vec<_>>>()?.into_iter().unzip();
-        if self.keep > 0 {
-            if self.recent.len() == self.keep {
-                self.recent.pop_front();
-            }
-            self.recent.push_back(origins);
-        }
+        push_latest(&mut self.recent, self.keep, || origins);
         Ok(batch)
     }
 
@@ -313,12 +308,17 @@ impl<T> ValPick<T> {
 
 /// Appends a batch's inputs to `recent`, keeping the latest `k`.
 pub(super) fn keep_latest(recent: &mut std::collections::VecDeque<T4>, k: usize, batch: &[Pair]) {
+    let (w, h) = (batch[0].w, batch[0].h);
+    push_latest(recent, k, || to_t4(&batch.iter().map(|p| p.lq.as_slice()).collect::<Vec<_>>(), w, h));
+}
+
+/// Appends `item()` to `recent`, keeping the latest `k` (none, and `item` not called, for 0).
+pub(super) fn push_latest<T>(recent: &mut std::collections::VecDeque<T>, k: usize, item: impl FnOnce() -> T) {
     if k == 0 {
         return;
     }
     if recent.len() == k {
         recent.pop_front();
     }
-    let (w, h) = (batch[0].w, batch[0].h);
-    recent.push_back(to_t4(&batch.iter().map(|p| p.lq.as_slice()).collect::<Vec<_>>(), w, h));
+    recent.push_back(item());
 }

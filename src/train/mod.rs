@@ -99,17 +99,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
             return Err(stopped("reading the shards"));
         }
         for (j, raw) in crate::io::wds::read_shard_raw(s)?.into_iter().enumerate() {
-            let wh = raw.size(s)?;
-            if let Some((w, h)) = size.filter(|&want| want != wh) {
-                return Err(Error::Invalid(format!(
-                    "{}: sample {}: patch is {}x{}, expected {w}x{h} like the others",
-                    s.display(),
-                    raw.key,
-                    wh.0,
-                    wh.1
-                )));
-            }
-            size = Some(wh);
+            size = Some(raw.size(s, size)?);
             if !t.admit_source(raw.source) {
                 val.push(&raw.key.clone(), (i, raw));
             } else if needed.contains(&(i as u32, j as u32)) {
@@ -125,8 +115,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
             t.val_inputs
         )));
     }
-    let keep = if matches!(t.engine, Engine::Fast { .. }) { cfg.validate.bn_batches } else { 0 };
-    let mut stream = Stream::new(shards, cfg.seed, cfg.data.val_fraction, cfg.data.shuffle_buffer, size, keep);
+    let mut stream = Stream::new(shards, cfg.seed, cfg.data.val_fraction, cfg.data.shuffle_buffer, size, t.bn_batches());
     if let Some(state) = resume_at {
         // The buffer and the batches BatchNorm is recalibrated from, as they were.
         for batch in stream.restore(state, &found)? {

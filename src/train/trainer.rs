@@ -198,8 +198,18 @@ impl Trainer {
     /// Keeps the inputs of a training batch for the BatchNorm recalibration; a resumed run
     /// passes the batches it replays, so it recalibrates from the same ones.
     pub fn remember(&mut self, batch: &[Pair]) {
-        let k = if matches!(self.engine, Engine::Fast { .. }) { self.cfg.validate.bn_batches } else { 0 };
+        let k = self.bn_batches();
         keep_latest(&mut self.recent, k, batch);
+    }
+
+    /// How many of the latest training batches BatchNorm is recalibrated from (the fast
+    /// engine's `validate.bn_batches`; burn's keeps running statistics of its own).
+    pub(super) fn bn_batches(&self) -> usize {
+        if matches!(self.engine, Engine::Fast { .. }) {
+            self.cfg.validate.bn_batches
+        } else {
+            0
+        }
     }
 
     /// Recomputes BatchNorm's running statistics from the remembered batches (fast engine).
