@@ -48,7 +48,7 @@ pub enum Command {
     /// Deblur a video (same size and frame rate) or a folder of images (same names and formats).
     #[cfg(feature = "train")]
     #[command(
-        after_help = "Examples:\n  pipeline deblur coded.mp4 -o sharp.mp4                  the shipped default model\n  pipeline deblur coded.mkv -o sharp.mkv --lossless       FFV1, lossless RGB\n  pipeline deblur frames/ -o sharp/ --model runs/unet16/model-0000300.safetensors\n\nThe output's kind follows its extension: a video from a video, an image or a folder (no\nextension) from one image, a folder from a folder of images; anything else is a usage error.\nParent folders are created. Writes OUTPUT and OUTPUT.report.json (a folder: OUTPUT/report.json)\nwith frames, size, frame rate and frames/s. Audio is not copied."
+        after_help = "Examples:\n  pipeline deblur coded.mp4 -o sharp.mp4                  the shipped default model\n  pipeline deblur coded.mkv -o sharp.mkv --lossless       FFV1, lossless RGB\n  pipeline deblur frames/ -o sharp/ --model runs/unet16/model-0000300.safetensors\n\nThe output's kind follows its extension: a video from a video, an image or a folder (no\nextension) from one image, a folder from a folder of images; anything else is a usage error.\nParent folders are created. Writes OUTPUT and OUTPUT.report.json (a folder: OUTPUT/report.json)\nwith frames, size, frame rate and frames/s. Audio is not copied. An output an earlier run wrote\nis not replaced without --overwrite (exit 2); an interrupted folder run is finished by rerunning it."
     )]
     Deblur(crate::commands::deblur::DeblurArgs),
     /// Score a model the way the paper's Table 1 does: windows of N = 7..13 frames from your
@@ -56,7 +56,7 @@ pub enum Command {
     /// input against the sharp middle frame.
     #[cfg(all(feature = "train", feature = "ffmpeg"))]
     #[command(
-        after_help = "Examples:\n  pipeline eval clip.mp4 -o eval-out/                         the shipped model, coded camera\n  pipeline eval clips/ --model models/unet16-conventional/model.safetensors --camera conventional -o eval-conv/\n  pipeline eval clip.mp4 --set eval.crop=256 --set 'eval.windows=[9]'\n\nWrites eval.json (every window, the means, the config), eval.md (Table 1 and per-sigma\ntables) and examples/*.png (blurred | deblurred | sharp). Keys: pipelines/eval.toml (embedded)."
+        after_help = "Examples:\n  pipeline eval clip.mp4 -o eval-out/                         the shipped model, coded camera\n  pipeline eval clips/ --model models/unet16-conventional/model.safetensors --camera conventional -o eval-conv/\n  pipeline eval clip.mp4 --set eval.crop=256 --set 'eval.windows=[9]'\n\nWrites eval.json (every window, the means, the config), eval.md (Table 1 and per-sigma\ntables) and examples/*.png (blurred | deblurred | sharp). Keys: pipelines/eval.toml (embedded).\nA folder holding an earlier eval.json is not written into without --overwrite (exit 2)."
     )]
     Eval(crate::commands::eval::EvalArgs),
     /// Draw one of the paper's comparison figures (conventional, fluttered shutter, parabolic

@@ -414,6 +414,21 @@ pub fn image_ext(p: &Path) -> Option<String> {
     IMAGE_EXTENSIONS.contains(&e.as_str()).then_some(e)
 }
 
+/// The files a run from `input` would write at `out` (the report aside): the video or image, or
+/// the folder's images of the input's names. None for a folder whose report says its run was
+/// interrupted: rerunning it is how it is finished.
+fn would_replace(input: &Path, out: &Path, kind: OutKind) -> Result<Vec<PathBuf>> {
+    if kind != OutKind::Folder {
+        return Ok(vec![out.to_path_buf()]);
+    }
+    let report = std::fs::read(out.join("report.json")).ok().and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok());
+    if report.is_some_and(|r| r["interrupted"] == true) {
+        return Ok(Vec::new());
+    }
+    let files = crate::io::paths::expand_paths(&[input.display().to_string()], &IMAGE_EXTENSIONS)?;
+    Ok(files.iter().filter_map(|f| f.file_name()).map(|n| out.join(n)).collect())
+}
+
 /// Writes the report beside the output.
 ///
 /// # Errors
@@ -442,6 +457,10 @@ pub struct DeblurArgs {
     /// Lossless output (FFV1 RGB in .mkv) instead of H.264.
     #[arg(long)]
     pub lossless: bool,
+    /// Replace what an earlier run wrote at the output (refused otherwise; a folder whose report
+    /// says the run was interrupted is carried on without it).
+    #[arg(long)]
+    pub overwrite: bool,
     #[command(flatten)]
     pub file: ConfigArgs,
 }
@@ -451,7 +470,7 @@ pub struct DeblurArgs {
 /// # Errors
 /// Whatever the command reports (exit codes in `main.rs`).
 pub fn command(a: DeblurArgs) -> anyhow::Result<()> {
-    let DeblurArgs { input, out, model, tile, overlap, lossless, file } = a;
+    let DeblurArgs { input, out, model, tile, overlap, lossless, overwrite, file } = a;
     let same = input.canonicalize().ok().zip(out.canonicalize().ok()).is_some_and(|(a, b)| a == b) || input == out;
     if same {
         return Err(Error::Usage(format!("{}: the output is the input; choose another output path", out.display())).into());
@@ -462,6 +481,7 @@ pub fn command(a: DeblurArgs) -> anyhow::Result<()> {
         return Err(Error::Usage(format!("{}: no such file or folder", input.display())).into());
     }
     let kind = output_kind(&input, &out)?;
+    crate::io::paths::refuse_replacing(&out, &would_replace(&input, &out, kind)?, overwrite)?;
     let (table, origin) = file.load(crate::commands::deblur::DEBLUR_TOML, "pipelines/deblur.toml")?;
     let mut d = crate::commands::deblur::DeblurFile::from_table(table, &origin)?.deblur;
     d.tile = tile.unwrap_or(d.tile);

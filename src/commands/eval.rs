@@ -585,6 +585,9 @@ pub struct EvalArgs {
     /// also gives this model's output minus that one's, per N.
     #[arg(long, value_name = "EVAL_JSON")]
     pub versus: Option<std::path::PathBuf>,
+    /// Replace the eval.json and eval.md an earlier run left in the output folder (refused otherwise).
+    #[arg(long)]
+    pub overwrite: bool,
     #[command(flatten)]
     pub file: super::ConfigArgs,
 }
@@ -594,7 +597,8 @@ pub struct EvalArgs {
 /// # Errors
 /// Whatever the command reports (exit codes in `main.rs`).
 pub fn command(a: EvalArgs) -> anyhow::Result<()> {
-    let EvalArgs { videos, out, model, camera, versus, file } = a;
+    let EvalArgs { videos, out, model, camera, versus, overwrite, file } = a;
+    crate::io::paths::refuse_replacing(&out, &[out.join("eval.json"), out.join("eval.md")], overwrite)?;
     // Read first: a missing or foreign file is a usage error before any work.
     let versus = versus.map(|p| Versus::read(&p)).transpose()?;
     let (table, origin) = file.load(crate::commands::eval::EVAL_TOML, "pipelines/eval.toml")?;

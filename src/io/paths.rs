@@ -70,6 +70,27 @@ pub fn inside(dir: &Path, name: &str, file: &Path, field: &str) -> Result<PathBu
     Ok(p)
 }
 
+/// Refuses to replace what an earlier run left at `out` (the files of `found` that exist) unless
+/// `overwrite`: the rule `train` applies to run folders, for the outputs of `eval` and `deblur`.
+///
+/// # Errors
+/// A usage error naming `out`, up to three of the files, and the two ways on.
+pub fn refuse_replacing(out: &Path, found: &[PathBuf], overwrite: bool) -> Result<(), crate::Error> {
+    let there: Vec<&PathBuf> = found.iter().filter(|p| std::fs::symlink_metadata(p).is_ok()).collect();
+    if overwrite || there.is_empty() {
+        return Ok(());
+    }
+    let mut names: Vec<String> = there.iter().take(3).map(|p| p.display().to_string()).collect();
+    if there.len() > 3 {
+        names.push(format!("and {} more", there.len() - 3));
+    }
+    Err(crate::Error::Usage(format!(
+        "{}: an earlier run's output is there ({}); add --overwrite to replace it, or choose another output",
+        out.display(),
+        names.join(", ")
+    )))
+}
+
 fn glob_match(pat: &str, s: &str) -> bool {
     let (p, s): (Vec<char>, Vec<char>) = (pat.chars().collect(), s.chars().collect());
     fn go(p: &[char], s: &[char]) -> bool {

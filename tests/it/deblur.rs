@@ -59,6 +59,27 @@ fn a_folder_of_images_keeps_the_names() {
     let o = run(&["deblur", src.join("a.png").to_str().unwrap(), "-o", d.join("into").to_str().unwrap(), "--progress", "never"]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert_eq!(pipeline::io::png::read_rgb8(&std::fs::read(d.join("into/a.png")).unwrap()).unwrap().2, folder_out);
+    // An output an earlier run wrote is not replaced without --overwrite (exit 2, nothing touched):
+    // one image, and a folder of the same names.
+    std::fs::write(&one, b"kept").unwrap();
+    std::fs::write(dst.join("a.png"), b"kept").unwrap();
+    for (from, to) in [(src.join("a.png"), &one), (src.clone(), &dst)] {
+        let o = run(&["deblur", from.to_str().unwrap(), "-o", to.to_str().unwrap(), "--progress", "never"]);
+        assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+        assert!(stderr(&o).contains("--overwrite") && stderr(&o).contains("an earlier run"), "{}", stderr(&o));
+    }
+    assert_eq!((std::fs::read(&one).unwrap(), std::fs::read(dst.join("a.png")).unwrap()), (b"kept".to_vec(), b"kept".to_vec()));
+    // A folder run that was interrupted is finished by running it again, without --overwrite.
+    let report = dst.join("report.json");
+    let mut r: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    r["interrupted"] = serde_json::json!(true);
+    std::fs::write(&report, serde_json::to_vec(&r).unwrap()).unwrap();
+    let o = run(&["deblur", src.to_str().unwrap(), "-o", dst.to_str().unwrap(), "--progress", "never"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(pipeline::io::png::read_rgb8(&std::fs::read(dst.join("a.png")).unwrap()).unwrap().2, folder_out);
+    let o = run(&["deblur", src.join("a.png").to_str().unwrap(), "-o", one.to_str().unwrap(), "--overwrite", "--progress", "never"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert_eq!(pipeline::io::png::read_rgb8(&std::fs::read(&one).unwrap()).unwrap().2, folder_out);
 }
 
 #[test]

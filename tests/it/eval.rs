@@ -113,6 +113,12 @@ fn eval_numbers_match_a_hand_computation_on_one_frame() {
     assert!(md.contains("| N=7 ") && md.contains("| N=9 ") && md.contains("blurred input (RGB)"), "{md}");
     let name = Path::new(FIXTURE).file_name().unwrap().to_str().unwrap();
     assert!(md.contains("## Per video") && md.contains(&format!("| {name} | N=9 ")), "{md}");
+    // The same command again does not replace that run's tables (exit 2, naming --overwrite).
+    let before = std::fs::read(d.join("eval.json")).unwrap();
+    let o = run(&["eval", FIXTURE, "-o", d.to_str().unwrap(), "--progress", "never", "--set", "eval.windows=[7]"]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("eval.json") && stderr(&o).contains("--overwrite"), "{}", stderr(&o));
+    assert_eq!(std::fs::read(d.join("eval.json")).unwrap(), before);
 }
 
 #[test]
