@@ -95,6 +95,14 @@ impl Bar {
         }
     }
 
+    /// A line of its own above the bar (or on stderr when there is no bar), shown in every mode.
+    pub fn println(&self, text: &str) {
+        match &self.bar {
+            Some(b) => b.println(text),
+            None => eprintln!("{text}"),
+        }
+    }
+
     fn line(&self, force: bool) {
         if self.mode != ProgressMode::Lines {
             return;

@@ -7,7 +7,7 @@
 use super::ConfigArgs;
 use crate::io::{png as png_io, write_atomic};
 use crate::model::fast::FastNet;
-use crate::model::infer::{run_frame, Tiling};
+use crate::model::infer::{run_frame, run_rows, Tiling};
 use crate::progress::{Bar, ProgressMode};
 use crate::{Error, Result};
 use clap::Args;
@@ -83,8 +83,17 @@ pub struct DeblurReport {
     pub audio: &'static str,
     /// Images that could not be read or written (folder input), and why; the rest were done.
     pub failed: Vec<FailedImage>,
+    /// Images written in another format than their own (alpha dropped, 16 bits to 8, ...: the
+    /// output format could not keep it), and what changed.
+    pub changed: Vec<Changed>,
     /// Stopped by SIGINT or SIGTERM after `frames` images, each written whole.
     pub interrupted: bool,
+}
+
+#[derive(Debug, serde::Serialize)]
+pub struct Changed {
+    pub path: String,
+    pub what: String,
 }
 
 #[derive(Debug, serde::Serialize)]
@@ -122,6 +131,7 @@ impl DeblurReport {
             frames_per_s: frames as f64 / seconds,
             audio,
             failed: Vec::new(),
+            changed: Vec::new(),
             interrupted: false,
         }
     }
@@ -243,36 +253,128 @@ pub fn to_rgb8(f: &crate::frame::Frame, float_linear: bool) -> Vec<u8> {
 /// Image formats `deblur` reads from a folder, and writes back in the same format.
 pub const IMAGE_EXTENSIONS: [&str; 6] = ["png", "jpg", "jpeg", "tif", "tiff", "exr"];
 
-/// Reads one image as interleaved 8-bit encoded RGB: PNG by our own reader, the others through
-/// FFmpeg's decoders (OpenEXR is linear and gets sRGB-encoded).
-fn read_image(f: &Path, ext: &str) -> Result<(usize, usize, Vec<u8>)> {
-    let bad = |e: String| Error::Invalid(format!("{}: {e}", f.display()));
+/// An image as `deblur` reads it, in its own sample format, so that it can be written back in it.
+enum Picture {
+    /// A PNG: grey, grey + alpha, RGB or RGBA, 8 or 16 bits.
+    Png(png_io::Samples),
+    /// Read by FFmpeg (JPEG, TIFF, OpenEXR): 8-bit or 16-bit encoded, or linear float (`float`),
+    /// as RGB; `alpha` and `grey` say what the file had.
+    Decoded { frame: crate::frame::Frame, float: bool, alpha: bool, grey: bool },
+}
+
+impl Picture {
+    fn size(&self) -> (usize, usize) {
+        match self {
+            Picture::Png(s) => (s.width, s.height),
+            Picture::Decoded { frame, .. } => (frame.width, frame.height),
+        }
+    }
+
+    /// The encoded value in [0, 1] of channel `c` (R, G, B) of pixel `i`, as the network sees it.
+    fn encoded(&self, i: usize, c: usize) -> f32 {
+        use crate::frame::FrameData;
+        match self {
+            Picture::Png(s) => s.get(i, if s.channels <= 2 { 0 } else { c }),
+            Picture::Decoded { frame, float, .. } => match &*frame.data {
+                FrameData::Planar8(p) => p[c][i] as f32 / 255.0,
+                FrameData::Planar16(p) => p[c][i] as f32 / 65535.0,
+                FrameData::Planar(p) if *float => png_io::srgb_encode(p[c][i]),
+                FrameData::Planar(p) => p[c][i].clamp(0.0, 1.0),
+                FrameData::Regions8(_) => unreachable!("only patch-mode decoding makes regions"),
+            },
+        }
+    }
+
+    /// (16-bit, float, alpha, grey) of the source.
+    fn traits(&self) -> (bool, bool, bool, bool) {
+        match self {
+            Picture::Png(s) => (s.sixteen, false, s.channels % 2 == 0, s.channels <= 2),
+            Picture::Decoded { frame, float, alpha, grey } => {
+                (matches!(&*frame.data, crate::frame::FrameData::Planar16(_)), *float, *alpha, *grey)
+            }
+        }
+    }
+}
+
+/// Reads one image: PNG by our own reader (its layout and depth kept), the others through
+/// FFmpeg's decoders.
+fn read_picture(f: &Path, ext: &str) -> Result<Picture> {
     if ext == "png" {
         let bytes = std::fs::read(f).map_err(|e| Error::Io { path: f.to_path_buf(), cause: e })?;
-        return png_io::read_rgb8(&bytes).map_err(bad);
+        return png_io::read_samples(&bytes).map(Picture::Png).map_err(|e| Error::Invalid(format!("{}: {e}", f.display())));
     }
     #[cfg(feature = "ffmpeg")]
     {
-        let (frame, float) = crate::io::video::read_image(f).map_err(Error::video(f))?;
-        Ok((frame.width, frame.height, to_rgb8(&frame, float)))
+        let (frame, r) = crate::io::video::read_image_with(f).map_err(Error::video(f))?;
+        Ok(Picture::Decoded { frame, float: r.float, alpha: r.alpha, grey: r.grey })
     }
     #[cfg(not(feature = "ffmpeg"))]
-    Err(bad("only PNG is read without the ffmpeg feature".into()))
+    Err(Error::Invalid(format!("{}: only PNG is read without the ffmpeg feature", f.display())))
 }
 
-/// Writes one image in the format its extension names: PNG and OpenEXR (linear light, decoded
-/// from sRGB) by our own writers, JPEG and TIFF through FFmpeg's encoders; atomically.
-fn write_image(dst: &Path, ext: &str, w: usize, h: usize, rgb: &[u8]) -> Result<()> {
-    match ext {
-        "png" => write_atomic(dst, |wr| png_io::write_rgb8(wr, w, h, rgb)),
-        "exr" => {
-            let curve = crate::optics::transfer::Curve::Srgb;
-            let planes: [Vec<f32>; 3] =
-                std::array::from_fn(|c| (0..w * h).map(|i| curve.to_linear(rgb[i * 3 + c] as f64 / 255.0) as f32).collect());
-            write_atomic(dst, |wr| crate::io::exr::write_rgb_f32(wr, w, h, [&planes[0], &planes[1], &planes[2]]))
+/// What deblurring is written into, chosen by the output's format: a PNG from a PNG keeps its
+/// samples' layout (grey, alpha, 16 bits); OpenEXR gets linear float; the rest 8-bit RGB.
+enum Canvas {
+    Png(png_io::Samples),
+    Linear([Vec<f32>; 3]),
+    Rgb8(Vec<u8>),
+}
+
+/// Deblurs `src` (extension `src_ext`) into `dst` in the format of `dst_ext`. Returns the size and
+/// what of the source's format the output could not keep (empty when it kept everything).
+fn deblur_image(
+    net: &FastNet,
+    src: &Path,
+    src_ext: &str,
+    dst: &Path,
+    dst_ext: &str,
+    tiling: Tiling,
+) -> Result<((usize, usize), Vec<String>)> {
+    let pic = read_picture(src, src_ext)?;
+    let (w, h) = pic.size();
+    let (sixteen, float, alpha, grey) = pic.traits();
+    let mut canvas = match (&pic, dst_ext) {
+        (Picture::Png(s), "png") => Canvas::Png(s.clone()),
+        (_, "exr") => Canvas::Linear(std::array::from_fn(|_| vec![0.0; w * h])),
+        _ => Canvas::Rgb8(vec![0; w * h * 3]),
+    };
+    let mut lost = Vec::new();
+    let kept_by = |c: &Canvas| matches!(c, Canvas::Png(_));
+    if alpha && !kept_by(&canvas) {
+        lost.push("alpha dropped".to_string());
+    }
+    if grey && !kept_by(&canvas) {
+        lost.push("grey written as RGB".to_string());
+    }
+    if (sixteen || float) && matches!(canvas, Canvas::Rgb8(_)) {
+        lost.push(format!("{} samples written as 8 bits", if float { "float" } else { "16-bit" }));
+    }
+    let curve = crate::optics::transfer::Curve::Srgb;
+    run_rows(net, w, h, tiling, &|i, c| pic.encoded(i, c), &mut |y, row| {
+        for x in 0..w {
+            let (i, rgb) = (y * w + x, &row[x * 3..x * 3 + 3]);
+            match &mut canvas {
+                Canvas::Png(s) if s.channels <= 2 => s.set(i, 0, (rgb[0] + rgb[1] + rgb[2]) / 3.0),
+                Canvas::Png(s) => (0..3).for_each(|c| s.set(i, c, rgb[c])),
+                Canvas::Linear(p) => (0..3).for_each(|c| p[c][i] = curve.to_linear(rgb[c] as f64) as f32),
+                Canvas::Rgb8(o) => (0..3).for_each(|c| o[i * 3 + c] = (rgb[c] * 255.0).round() as u8),
+            }
         }
+    });
+    drop(pic);
+    write_canvas(dst, dst_ext, w, h, &canvas)?;
+    Ok(((w, h), lost))
+}
+
+/// Writes a [`Canvas`] in the format its extension names: PNG and OpenEXR by our own writers,
+/// JPEG and TIFF (8-bit RGB) through FFmpeg's encoders; atomically.
+fn write_canvas(dst: &Path, ext: &str, w: usize, h: usize, canvas: &Canvas) -> Result<()> {
+    match (canvas, ext) {
+        (Canvas::Png(s), _) => write_atomic(dst, |wr| png_io::write_samples(wr, s)),
+        (Canvas::Linear(p), _) => write_atomic(dst, |wr| crate::io::exr::write_rgb_f32(wr, w, h, [&p[0], &p[1], &p[2]])),
+        (Canvas::Rgb8(rgb), "png") => write_atomic(dst, |wr| png_io::write_rgb8(wr, w, h, rgb)),
         #[cfg(feature = "ffmpeg")]
-        _ => {
+        (Canvas::Rgb8(rgb), _) => {
             use crate::io::video::Codec;
             let codec = if ext.starts_with("tif") { Codec::Tiff } else { Codec::Jpeg };
             let tmp = temp_for(dst);
@@ -285,7 +387,7 @@ fn write_image(dst: &Path, ext: &str, w: usize, h: usize, rgb: &[u8]) -> Result<
             res
         }
         #[cfg(not(feature = "ffmpeg"))]
-        _ => Err(Error::Invalid(format!("{}: JPEG and TIFF need the ffmpeg feature", dst.display()))),
+        (Canvas::Rgb8(_), _) => Err(Error::Invalid(format!("{}: JPEG and TIFF need the ffmpeg feature", dst.display()))),
     }
 }
 
@@ -319,6 +421,7 @@ pub fn images(
     let bar = Bar::new(progress, "deblur", "images", Some(files.len() as u64));
     let (mut w, mut h, mut done) = (0, 0, 0);
     let mut failed = Vec::new();
+    let mut changed = Vec::new();
     let mut interrupted = false;
     for f in &files {
         if crate::signal::interrupted() {
@@ -326,18 +429,19 @@ pub fn images(
             break;
         }
         let ext = f.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
-        let res = read_image(f, &ext).and_then(|(fw, fh, rgb)| {
-            let out = run_frame(net, &rgb, fw, fh, tiling);
-            match &single {
-                Some(out_ext) => write_image(output, out_ext, fw, fh, &out),
-                None => write_image(&output.join(f.file_name().expect("a file")), &ext, fw, fh, &out),
-            }
-            .map(|()| (fw, fh))
-        });
+        let res = match &single {
+            Some(out_ext) => deblur_image(net, f, &ext, output, out_ext, tiling),
+            None => deblur_image(net, f, &ext, &output.join(f.file_name().expect("a file")), &ext, tiling),
+        };
         match res {
-            Ok(size) => {
+            Ok((size, lost)) => {
                 (w, h) = size;
                 done += 1;
+                if !lost.is_empty() {
+                    let what = lost.join(", ");
+                    bar.println(&format!("note: {}: {what}", f.display()));
+                    changed.push(Changed { path: f.display().to_string(), what });
+                }
             }
             Err(e) => {
                 let msg = e.to_string();
@@ -351,6 +455,7 @@ pub fn images(
     bar.finish();
     let mut r = DeblurReport::new(input, output, model_name, done, (w, h), None, tiling, t0, "none (images)");
     r.failed = failed;
+    r.changed = changed;
     r.interrupted = interrupted;
     Ok(r)
 }

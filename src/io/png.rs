@@ -46,8 +46,68 @@ pub fn read_rgba8(bytes: &[u8]) -> Result<(usize, usize, Vec<u8>), String> {
 /// RGB or RGBA). Files that declare more than [`MAX_PIXELS`] pixels are refused before anything
 /// is allocated for them.
 fn decode(bytes: &[u8]) -> Result<(usize, usize, png::ColorType, Vec<u8>), String> {
+    decode_as(bytes, png::Transformations::EXPAND | png::Transformations::STRIP_16)
+}
+
+/// A PNG's samples in its own layout, to be written back in it: `channels` per pixel (1 grey,
+/// 2 grey + alpha, 3 RGB, 4 RGBA; palettes expanded to RGB or RGBA), 8 or 16 bits each
+/// (`sixteen`; the samples then big-endian, as PNG stores them), interleaved.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Samples {
+    pub width: usize,
+    pub height: usize,
+    pub channels: usize,
+    pub sixteen: bool,
+    pub data: Vec<u8>,
+}
+
+impl Samples {
+    /// Sample `c` of pixel `i`, scaled to [0, 1].
+    pub fn get(&self, i: usize, c: usize) -> f32 {
+        let k = i * self.channels + c;
+        if self.sixteen {
+            u16::from_be_bytes([self.data[2 * k], self.data[2 * k + 1]]) as f32 / 65535.0
+        } else {
+            self.data[k] as f32 / 255.0
+        }
+    }
+
+    /// Sets sample `c` of pixel `i` from a value in [0, 1].
+    pub fn set(&mut self, i: usize, c: usize, v: f32) {
+        let k = i * self.channels + c;
+        if self.sixteen {
+            let q = (v.clamp(0.0, 1.0) * 65535.0).round() as u16;
+            self.data[2 * k..2 * k + 2].copy_from_slice(&q.to_be_bytes());
+        } else {
+            self.data[k] = (v.clamp(0.0, 1.0) * 255.0).round() as u8;
+        }
+    }
+}
+
+/// Reads a PNG keeping its layout and depth ([`Samples`]); the same size limit as [`read_rgb8`].
+pub fn read_samples(bytes: &[u8]) -> Result<Samples, String> {
+    let (width, height, color, data) = decode_as(bytes, png::Transformations::EXPAND)?;
+    let channels = color.samples();
+    let sixteen = data.len() == width * height * channels * 2;
+    Ok(Samples { width, height, channels, sixteen, data })
+}
+
+/// Writes [`Samples`] as a PNG of their layout and depth.
+pub fn write_samples(w: &mut dyn Write, s: &Samples) -> std::io::Result<()> {
+    use png::ColorType::*;
+    let color = [Grayscale, GrayscaleAlpha, Rgb, Rgba][s.channels - 1];
+    let mut enc = png::Encoder::new(w, s.width as u32, s.height as u32);
+    enc.set_color(color);
+    enc.set_depth(if s.sixteen { png::BitDepth::Sixteen } else { png::BitDepth::Eight });
+    enc.set_compression(png::Compression::Fast);
+    let mut wr = enc.write_header().map_err(std::io::Error::other)?;
+    wr.write_image_data(&s.data).map_err(std::io::Error::other)?;
+    wr.finish().map_err(std::io::Error::other)
+}
+
+fn decode_as(bytes: &[u8], transformations: png::Transformations) -> Result<(usize, usize, png::ColorType, Vec<u8>), String> {
     let mut dec = png::Decoder::new(std::io::Cursor::new(bytes));
-    dec.set_transformations(png::Transformations::EXPAND | png::Transformations::STRIP_16);
+    dec.set_transformations(transformations);
     let mut r = dec.read_info().map_err(|e| e.to_string())?;
     let (dw, dh) = (r.info().width as u64, r.info().height as u64);
     if dw * dh > MAX_PIXELS {

@@ -32,6 +32,10 @@ pub struct VideoReader {
     /// The source is floating point (OpenEXR, float TIFF): frames come as linear-light
     /// `FrameData::Planar` floats, not clipped or encoded.
     pub float: bool,
+    /// The source has an alpha channel (frames come without it).
+    pub alpha: bool,
+    /// The source is grey (frames come as RGB with three equal channels).
+    pub grey: bool,
     /// Convert every frame with swscale, also the 8-bit Y'CbCr formats [`crate::io::yuv`]
     /// converts by default (the reference the tests compare that path with).
     pub force_swscale: bool,
@@ -75,6 +79,19 @@ fn is_float(p: ff::format::Pixel) -> bool {
     unsafe {
         let d = ff::ffi::av_pix_fmt_desc_get(p.into());
         !d.is_null() && (*d).flags & ff::ffi::AV_PIX_FMT_FLAG_FLOAT as u64 != 0
+    }
+}
+
+/// Whether a pixel format has an alpha channel, and whether it is grey (one colour component).
+fn alpha_grey(p: ff::format::Pixel) -> (bool, bool) {
+    // SAFETY: av_pix_fmt_desc_get returns null or a pointer to a static descriptor.
+    unsafe {
+        let d = ff::ffi::av_pix_fmt_desc_get(p.into());
+        if d.is_null() {
+            return (false, false);
+        }
+        let alpha = (*d).flags & ff::ffi::AV_PIX_FMT_FLAG_ALPHA as u64 != 0;
+        (alpha, (*d).nb_components as usize - usize::from(alpha) == 1)
     }
 }
 
@@ -176,6 +193,7 @@ impl VideoReader {
         };
         let bit_depth = depth_of(decoder.format());
         let float = is_float(decoder.format());
+        let (alpha, grey) = alpha_grey(decoder.format());
         if info.width == 0 || info.height == 0 {
             return Err("video stream has no size".into());
         }
@@ -193,6 +211,8 @@ impl VideoReader {
             bit_depth,
             rate: (rate.numerator(), rate.denominator()),
             float,
+            alpha,
+            grey,
             force_swscale: false,
             regions: None,
         })
@@ -534,9 +554,17 @@ impl VideoWriter {
 /// # Errors
 /// Unreadable or empty (message without the path).
 pub fn read_image(path: &Path) -> Result<(Frame, bool), VideoError> {
+    read_image_with(path).map(|(f, r)| (f, r.float))
+}
+
+/// [`read_image`], with the reader (its source's depth, alpha and grey).
+///
+/// # Errors
+/// As [`read_image`].
+pub fn read_image_with(path: &Path) -> Result<(Frame, VideoReader), VideoError> {
     let mut r = VideoReader::open(path)?;
     let f = r.next_frame()?.ok_or("no image in the file")?;
-    Ok((f, r.float))
+    Ok((f, r))
 }
 
 /// Writes one 8-bit RGB image as JPEG or TIFF, chosen by `codec`.

@@ -56,37 +56,73 @@ fn ramp(i: usize, len: usize, start: usize, n: usize, o: usize) -> f32 {
 /// forward pass runs on all cores; tiles only bound the memory, and are blended in a fixed
 /// order, so the result does not depend on the number of threads.
 pub fn run_frame(net: &FastNet, rgb: &[u8], w: usize, h: usize, tiling: Tiling) -> Vec<u8> {
+    assert_eq!(rgb.len(), w * h * 3);
+    let mut out = vec![0u8; w * h * 3];
+    run_rows(net, w, h, tiling, &|i, c| rgb[i * 3 + c] as f32 / 255.0, &mut |y, row| {
+        for (o, v) in out[y * w * 3..(y + 1) * w * 3].iter_mut().zip(row) {
+            *o = (v * 255.0).round() as u8;
+        }
+    });
+    out
+}
+
+/// The streaming form of [`run_frame`] for any sample format: `input(pixel, channel)` gives the
+/// encoded value in [0, 1] of channel `channel` (R, G, B) of pixel `y * w + x`; `emit(y, row)`
+/// receives each finished output row, interleaved RGB clamped to [0, 1], top to bottom. One row
+/// of tiles is held at a time, so the memory beyond the caller's buffers is bounded by the tile
+/// size and the frame's width, not its height.
+pub fn run_rows(
+    net: &FastNet,
+    w: usize,
+    h: usize,
+    tiling: Tiling,
+    input: &(dyn Fn(usize, usize) -> f32 + Sync),
+    emit: &mut dyn FnMut(usize, &[f32]),
+) {
     let (t, o) = (tiling.tile.max(16), tiling.overlap.min(tiling.tile / 2));
     let ((tw, xs), (th, ys)) = (tiles_1d(w, t, o), tiles_1d(h, t, o));
-    let tiles: Vec<(usize, usize)> = ys.iter().flat_map(|&y0| xs.iter().map(move |&x0| (x0, y0))).collect();
-    let forward = |&(x0, y0): &(usize, usize)| -> Vec<f32> {
-        let mut v = vec![0.0f32; 3 * tw * th];
-        for y in 0..th {
-            for x in 0..tw {
-                for c in 0..3 {
-                    v[c * tw * th + y * tw + x] = rgb[((y0 + y) * w + x0 + x) * 3 + c] as f32 / 255.0;
+    // The blended rows from `base` on (RGB sums and weights); rows above `base` are emitted.
+    let (mut base, mut acc, mut wsum) = (0usize, Vec::<f32>::new(), Vec::<f32>::new());
+    for (k, &y0) in ys.iter().enumerate() {
+        let rows = y0 + th - base;
+        acc.resize(rows * w * 3, 0.0);
+        wsum.resize(rows * w, 0.0);
+        for &x0 in &xs {
+            let mut v = vec![0.0f32; 3 * tw * th];
+            for c in 0..3 {
+                for y in 0..th {
+                    for x in 0..tw {
+                        v[c * tw * th + y * tw + x] = input((y0 + y) * w + x0 + x, c);
+                    }
+                }
+            }
+            let out = net.forward(&T4::new(1, 3, th, tw, v)).d;
+            for y in 0..th {
+                let wy = ramp(y, th, y0, h, o);
+                let r = y0 + y - base;
+                for x in 0..tw {
+                    let wgt = wy * ramp(x, tw, x0, w, o);
+                    let p = r * w + x0 + x;
+                    wsum[p] += wgt;
+                    for c in 0..3 {
+                        acc[p * 3 + c] += wgt * out[c * tw * th + y * tw + x];
+                    }
                 }
             }
         }
-        net.forward(&T4::new(1, 3, th, tw, v)).d
-    };
-    let outs: Vec<Vec<f32>> = tiles.iter().map(forward).collect();
-    let mut acc = vec![0.0f32; w * h * 3];
-    let mut wsum = vec![0.0f32; w * h];
-    for (&(x0, y0), out) in tiles.iter().zip(&outs) {
-        for y in 0..th {
-            let wy = ramp(y, th, y0, h, o);
-            for x in 0..tw {
-                let wgt = wy * ramp(x, tw, x0, w, o);
-                let p = (y0 + y) * w + x0 + x;
-                wsum[p] += wgt;
-                for c in 0..3 {
-                    acc[p * 3 + c] += wgt * out[c * tw * th + y * tw + x];
-                }
+        // Rows above the next tile row's start get nothing more.
+        let done = ys.get(k + 1).map_or(h, |&next| next) - base;
+        let mut row = vec![0.0f32; w * 3];
+        for r in 0..done {
+            for (i, v) in row.iter_mut().enumerate() {
+                *v = (acc[r * w * 3 + i] / wsum[r * w + i / 3]).clamp(0.0, 1.0);
             }
+            emit(base + r, &row);
         }
+        acc.drain(..done * w * 3);
+        wsum.drain(..done * w);
+        base += done;
     }
-    acc.iter().enumerate().map(|(i, v)| ((v / wsum[i / 3]).clamp(0.0, 1.0) * 255.0).round() as u8).collect()
 }
 
 /// Loads `--model`, or the embedded default.

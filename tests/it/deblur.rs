@@ -271,3 +271,43 @@ fn the_output_kind_follows_its_extension_and_a_mismatch_is_a_usage_error() {
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(d.join("out/a.png").exists() && d.join("out/report.json").exists());
 }
+
+#[test]
+fn grey_alpha_and_16_bit_pngs_come_back_in_their_own_layout_and_what_a_format_cannot_keep_is_said() {
+    let d = scratch("deblur_layouts");
+    let (src, dst) = (d.join("in"), d.join("out"));
+    std::fs::create_dir_all(&src).unwrap();
+    let (w, h) = (40, 30);
+    let mut written = Vec::new();
+    for (name, channels, sixteen) in [("g8.png", 1, false), ("ga16.png", 2, true), ("rgba8.png", 4, false), ("rgb16.png", 3, true)] {
+        let n = w * h * channels * if sixteen { 2 } else { 1 };
+        // Grey-ish colour samples (three equal values would hide a channel mix-up) and a ramp of alpha.
+        let data: Vec<u8> = (0..n).map(|i| (pipeline::rng::hash(&[channels as u64, i as u64]) % 256) as u8).collect();
+        let s = pipeline::io::png::Samples { width: w, height: h, channels, sixteen, data };
+        let mut buf = Vec::new();
+        pipeline::io::png::write_samples(&mut buf, &s).unwrap();
+        std::fs::write(src.join(name), buf).unwrap();
+        written.push((name, s));
+    }
+    let dev = Device::flex();
+    let identity = FastNet::from_net(&Net::new(Arch::Shallow { width: 8 }, &dev).zero_last_layer(&dev));
+    let tiling = Tiling { tile: 32, overlap: 8 };
+    let never = pipeline::progress::ProgressMode::Never;
+    let r = pipeline::commands::deblur::images(&identity, "identity", &src, &dst, tiling, never).unwrap();
+    assert_eq!(r.frames, 4);
+    assert!(r.changed.is_empty(), "{:?}", r.changed);
+    for (name, s) in &written {
+        let back = pipeline::io::png::read_samples(&std::fs::read(dst.join(name)).unwrap()).unwrap();
+        assert_eq!((back.channels, back.sixteen), (s.channels, s.sixteen), "{name}");
+        // The identity model gives every sample back, alpha included, at its own depth.
+        assert!(back.data == s.data, "{name}: samples changed");
+    }
+    // A format that cannot hold what the source had: the image is written, and the report says what changed.
+    let one = d.join("one.jpg");
+    let r = pipeline::commands::deblur::images(&identity, "identity", &src.join("rgba8.png"), &one, tiling, never).unwrap();
+    assert!(one.exists());
+    assert_eq!(r.changed.len(), 1);
+    assert!(r.changed[0].path.ends_with("rgba8.png") && r.changed[0].what == "alpha dropped", "{:?}", r.changed);
+    let r = pipeline::commands::deblur::images(&identity, "identity", &src.join("ga16.png"), &d.join("two.tif"), tiling, never).unwrap();
+    assert_eq!(r.changed[0].what, "alpha dropped, grey written as RGB, 16-bit samples written as 8 bits");
+}
