@@ -455,9 +455,15 @@ impl Shards {
             }
         }
         let mut shards = Vec::new();
-        for (tmp, sh) in cur.closed {
+        let mut left = cur.closed.into_iter();
+        for (tmp, sh) in left.by_ref() {
             let fin = self.dir.join(&sh.name);
-            std::fs::rename(&tmp, &fin).map_err(|e| crate::Error::Io { path: fin, cause: e })?;
+            if let Err(e) = std::fs::rename(&tmp, &fin) {
+                let _ = std::fs::remove_file(&tmp);
+                left.for_each(|(t, _)| drop(std::fs::remove_file(t)));
+                self.unlist(&shards);
+                return Err(crate::Error::Io { path: fin, cause: e });
+            }
             shards.push(sh);
         }
         let entry = ManifestInput {
@@ -479,7 +485,8 @@ impl Shards {
         Counters::add(&self.counters.samples_kept, entry.samples as u64);
         let empty = Manifest { inputs: Vec::new(), samples: 0, ..self.manifest.clone() };
         let dir = self.dir.clone();
-        self.manifest = Manifest::update(&self.dir, &self.manifest_name, empty, |m| {
+        let names = entry.shards.clone();
+        let updated = Manifest::update(&self.dir, &self.manifest_name, empty, |m| {
             // An earlier entry of this input (other settings, damaged shards): its shards that
             // the new entry does not reuse go.
             for old in m.inputs.iter().filter(|i| i.key == entry.key) {
@@ -489,8 +496,30 @@ impl Shards {
             }
             m.inputs.retain(|i| i.key != entry.key);
             m.inputs.push(entry);
-        })?;
-        Ok(())
+        });
+        match updated {
+            Ok(m) => {
+                self.manifest = m;
+                Ok(())
+            }
+            Err(e) => {
+                self.unlist(&names);
+                Err(e)
+            }
+        }
+    }
+
+    /// Removes shards of this input already renamed into place when its manifest entry could not
+    /// be written (a full disk, say), so that every shard in the folder is one the manifest lists:
+    /// a `*.tar` glob never picks up an unlisted one. A shard of the same name that the manifest on
+    /// disk still lists (an earlier run's identical shard) stays.
+    fn unlist(&self, shards: &[ManifestShard]) {
+        let listed = Manifest::load(&self.dir, &self.manifest_name).ok().flatten();
+        for sh in shards {
+            if !listed.as_ref().is_some_and(|m| m.inputs.iter().any(|i| i.shards.iter().any(|o| o.name == sh.name))) {
+                let _ = std::fs::remove_file(self.dir.join(&sh.name));
+            }
+        }
     }
 }
 

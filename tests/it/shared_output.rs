@@ -323,3 +323,24 @@ fn sigterm_stops_training_with_a_checkpoint_to_resume_from() {
     assert_eq!(latest["step"], step);
     assert!(run.join(latest["model"].as_str().unwrap()).exists() && temporaries(&run).is_empty());
 }
+
+#[test]
+fn a_manifest_that_cannot_be_written_leaves_no_unlisted_shard_in_the_folder() {
+    // The manifest's lock is a folder, so the manifest update fails the way a full disk makes it
+    // fail: after the input's shards are finished. Those shards must not stay in the folder
+    // unlisted, where the trainer's `*.tar` glob would take them.
+    let d = scratch("shared_manifest_fails");
+    std::fs::create_dir_all(d.join(".manifest.json.lock")).unwrap();
+    let o = generate(&d, &[FIXTURE], &[SHORT]);
+    assert!(!o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains(".manifest.json.lock"), "{}", stderr(&o));
+    let tars: Vec<String> = files(&d).into_iter().filter(|n| n.ends_with(".tar")).collect();
+    assert!(tars.is_empty(), "unlisted shards left: {tars:?}");
+    assert!(temporaries(&d).is_empty(), "{:?}", temporaries(&d));
+    // Once the manifest can be written, the same command makes and lists them.
+    std::fs::remove_dir(d.join(".manifest.json.lock")).unwrap();
+    ok(&generate(&d, &[FIXTURE], &[SHORT]));
+    let m: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join("manifest.json")).unwrap()).unwrap();
+    let listed = m["inputs"][0]["shards"].as_array().unwrap().len();
+    assert!(listed > 0 && files(&d).iter().filter(|n| n.ends_with(".tar")).count() == listed);
+}
