@@ -45,6 +45,18 @@ pub enum Error {
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
 impl Error {
+    /// The message with its causes, one line (`stage shards: manifest.json: No space left`), for
+    /// reports that keep text.
+    pub fn chain(&self) -> String {
+        let mut text = self.to_string();
+        let mut cause = std::error::Error::source(self);
+        while let Some(c) = cause {
+            text = format!("{text}: {c}");
+            cause = c.source();
+        }
+        text
+    }
+
     /// A video error, naming its file.
     #[cfg(feature = "ffmpeg")]
     pub fn video(path: &std::path::Path) -> impl FnOnce(crate::io::video::VideoError) -> Error + '_ {

@@ -82,7 +82,43 @@ pub struct Report {
     pub stages: Vec<StageReport>,
     pub sink: serde_json::Value,
     pub interrupted: bool,
+    /// Why the run stopped before its end (a refused manifest, a full disk), or null.
+    pub error: Option<String>,
     pub config: serde_json::Value,
+}
+
+impl Report {
+    /// A report of nothing done yet, for `plan` run with `opts` into `out_dir`.
+    fn start(provenance: crate::provenance::Provenance, out_dir: &Path, plan: &Plan, opts: &RunOptions, inputs_total: usize) -> Report {
+        Report {
+            provenance,
+            out_dir: out_dir.display().to_string(),
+            seed: plan.seed,
+            task_index: opts.task_index,
+            task_count: opts.task_count,
+            inputs_total,
+            inputs_selected: 0,
+            inputs_skipped: Vec::new(),
+            inputs_redone: Vec::new(),
+            stale_removed: Vec::new(),
+            inputs_done: 0,
+            inputs_failed: Vec::new(),
+            inputs: Vec::new(),
+            frames: 0,
+            windows: 0,
+            subframes: 0,
+            samples: 0,
+            seconds: 0.0,
+            frames_per_s: 0.0,
+            subframes_per_s: 0.0,
+            samples_per_s: 0.0,
+            stages: Vec::new(),
+            sink: serde_json::Value::Null,
+            interrupted: false,
+            error: None,
+            config: serde_json::to_value(&plan.resolved).unwrap_or(serde_json::Value::Null),
+        }
+    }
 }
 
 /// The inputs of the plan's source, sorted, each with its global index.
@@ -210,10 +246,21 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
         eprintln!("removed {} (left by a run that was killed)", p.display());
     }
 
-    let n_total = all.len();
     // What the sink already holds from earlier runs (whole, same settings) is skipped.
     let task = (opts.task_index, opts.task_count);
-    let completed = plan.sink().completed(&out_dir, task, &settings)?;
+    let mut report = Report::start(provenance, &out_dir, plan, opts, all.len());
+    report.stale_removed = stale.iter().map(|p| p.display().to_string()).collect();
+    let stem = plan.sink().report_stem();
+    // A run refused here (a damaged or tampered manifest) still says so in its report.
+    let completed = match plan.sink().completed(&out_dir, task, &settings) {
+        Ok(c) => c,
+        Err(e) => {
+            report.error = Some(e.chain());
+            report.seconds = t0.elapsed().as_secs_f64();
+            let _ = write_report(&out_dir, opts, stem, &report);
+            return Err(e);
+        }
+    };
     let mut skipped = Vec::new();
     let selected: Vec<(Arc<Input>, Option<PathBuf>)> = all
         .into_iter()
@@ -296,25 +343,16 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
     });
     progress.finish();
     failures.extend(sink.failures());
-    if let Some(e) = first.lock().expect("error slot").take() {
-        return Err(e);
-    }
+    let fatal = first.lock().expect("error slot").take();
     let interrupted = crate::signal::interrupted();
     let secs = t0.elapsed().as_secs_f64();
     let (frames, windows, samples) =
         (Counters::get(&counters.frames), Counters::get(&counters.windows), Counters::get(&counters.samples_kept));
     let subframes = windows * plan.subframes_per_window() as u64;
     let report = Report {
-        provenance: provenance.clone(),
-        out_dir: out_dir.display().to_string(),
-        seed: plan.seed,
-        task_index: opts.task_index,
-        task_count: opts.task_count,
-        inputs_total: n_total,
         inputs_selected: n_selected,
         inputs_skipped: skipped,
         inputs_redone: redone,
-        stale_removed: stale.iter().map(|p| p.display().to_string()).collect(),
         inputs_done: Counters::get(&counters.inputs_done),
         inputs_failed: failures.into_iter().map(|(path, error)| FailedInput { path, error }).collect(),
         inputs: counters.inputs.lock().expect("inputs").clone(),
@@ -329,10 +367,15 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
         stages: reports,
         sink: sink_summary.into_inner().expect("summary").unwrap_or(serde_json::Value::Null),
         interrupted,
-        config: serde_json::to_value(&plan.resolved).unwrap_or(serde_json::Value::Null),
+        error: fatal.as_ref().map(Error::chain),
+        ..report
     };
     // A trainer sink writes its own report.json; the generation report then goes beside it.
-    let stem = plan.sink().report_stem();
+    if let Some(e) = fatal {
+        // The error is what the user must see; the report of a run that failed is best effort.
+        let _ = write_report(&out_dir, opts, stem, &report);
+        return Err(e);
+    }
     write_report(&out_dir, opts, stem, &report)?;
     if interrupted {
         return Err(Error::Interrupted(format!(

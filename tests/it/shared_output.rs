@@ -337,10 +337,26 @@ fn a_manifest_that_cannot_be_written_leaves_no_unlisted_shard_in_the_folder() {
     let tars: Vec<String> = files(&d).into_iter().filter(|n| n.ends_with(".tar")).collect();
     assert!(tars.is_empty(), "unlisted shards left: {tars:?}");
     assert!(temporaries(&d).is_empty(), "{:?}", temporaries(&d));
+    // The run that failed still leaves its report, saying why.
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join("report.json")).unwrap()).unwrap();
+    assert!(r["error"].as_str().unwrap().contains(".manifest.json.lock"), "{}", r["error"]);
+    assert_eq!(r["inputs_done"], 0);
     // Once the manifest can be written, the same command makes and lists them.
     std::fs::remove_dir(d.join(".manifest.json.lock")).unwrap();
     ok(&generate(&d, &[FIXTURE], &[SHORT]));
     let m: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join("manifest.json")).unwrap()).unwrap();
     let listed = m["inputs"][0]["shards"].as_array().unwrap().len();
     assert!(listed > 0 && files(&d).iter().filter(|n| n.ends_with(".tar")).count() == listed);
+}
+
+#[test]
+fn a_run_refused_over_a_damaged_manifest_leaves_a_report_saying_why() {
+    let d = scratch("shared_manifest_refused");
+    std::fs::write(d.join("manifest.json"), b"{ not json").unwrap();
+    let o = generate(&d, &[FIXTURE], &[SHORT]);
+    assert!(!o.status.success() && stderr(&o).contains("manifest.json"), "{}", stderr(&o));
+    assert_eq!(std::fs::read(d.join("manifest.json")).unwrap(), b"{ not json", "the damaged manifest was changed");
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join("report.json")).unwrap()).unwrap();
+    assert!(r["error"].as_str().unwrap().contains("not a pipeline manifest"), "{}", r["error"]);
+    assert_eq!((r["inputs_total"].as_u64(), r["inputs_done"].as_u64()), (Some(1), Some(0)));
 }
