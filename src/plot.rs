@@ -127,8 +127,12 @@ pub fn panel(canvas: &mut Canvas, (ox, oy, pw, ph): (usize, usize, usize, usize)
     if y1 == y0 {
         y1 = y0 + 1.0;
     }
-    let (left, top, bottom) = (ox + 80, oy + 24, oy + ph - 24);
     let right = ox + pw - 10;
+    let (left, bottom) = (ox + 80, oy + ph - 24);
+    // The legend gets rows of its own under the title, so no curve runs under it.
+    let names: Vec<&str> = series.iter().map(|s| s.name).collect();
+    let (at, legend_end) = legend_layout(&names, left + 10, right, oy + 16);
+    let top = legend_end + 8;
     let to = |x: f64, y: f64| {
         (left as f64 + (x - x0) / (x1 - x0) * (right - left) as f64, bottom as f64 - (y - y0) / (y1 - y0) * (bottom - top) as f64)
     };
@@ -148,6 +152,60 @@ pub fn panel(canvas: &mut Canvas, (ox, oy, pw, ph): (usize, usize, usize, usize)
             let (x, y) = to(s.points[0].0, s.points[0].1);
             canvas.line((x - 3.0, y), (x + 3.0, y), s.color);
         }
-        canvas.text(left + 10 + i * 200, top + 4, s.name, s.color);
+        canvas.text(at[i].0, at[i].1, s.name, s.color);
+    }
+}
+
+/// Height of a line of text at scale 2 (5 rows of glyph, 2 px each, and a gap).
+const TEXT_ROW: usize = 14;
+
+/// Places legend entries `names` left to right from `x0`, wrapping before `x1`, in rows from
+/// `y0`: each entry's top-left, and the y where the last row ends.
+fn legend_layout(names: &[&str], x0: usize, x1: usize, y0: usize) -> (Vec<(usize, usize)>, usize) {
+    let (mut x, mut y) = (x0, y0);
+    let mut at = Vec::with_capacity(names.len());
+    for n in names {
+        let w = font::text_width(n, 2);
+        if x > x0 && x + w > x1 {
+            (x, y) = (x0, y + TEXT_ROW);
+        }
+        at.push((x, y));
+        x += w + 24;
+    }
+    (at, if names.is_empty() { y0 } else { y + TEXT_ROW })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_legend_sits_above_the_curves_and_its_entries_do_not_overlap() {
+        // A flat curve at the very top of the plot, and names too long for one row.
+        let (w, h, right) = (400, 200, 390);
+        let mut c = Canvas::new(w, h, [0.0; 3]);
+        let names = ["TRAINING LOSS (PER STEP)", "RUNNING MEAN OF 100", "INITIAL MODEL'S RUN"];
+        let series: Vec<Series> = names
+            .iter()
+            .enumerate()
+            .map(|(i, n)| Series {
+                name: n,
+                points: vec![(0.0, 1.0 - i as f64 * 0.5), (2.0, 1.0 - i as f64 * 0.5)],
+                color: [1.0, 0.0, i as f32 * 0.1],
+            })
+            .collect();
+        panel(&mut c, (0, 0, w, h), "T", "X", &series);
+        let (at, end) = legend_layout(&names, 90, right, 16);
+        assert!(at[1].1 > at[0].1, "the second name wraps to a row of its own: {at:?}");
+        for (i, &(x, y)) in at.iter().enumerate() {
+            assert!(x + font::text_width(names[i], 2) <= right && y + TEXT_ROW <= end, "{i}: {at:?}");
+            if let Some(&(x2, y2)) = at.get(i + 1) {
+                assert!(y2 > y || x2 >= x + font::text_width(names[i], 2), "{i} and {} overlap: {at:?}", i + 1);
+            }
+        }
+        // The top curve, seen in the last column of the plot, runs below every row of the legend.
+        let col = right - 1;
+        let top_curve = (0..h).find(|&y| c.px[0][y * w + col] == 1.0 && c.px[2][y * w + col] == 0.0).expect("the top curve");
+        assert!(top_curve >= end, "the top curve at row {top_curve} runs under the legend (rows to {end})");
     }
 }

@@ -147,7 +147,7 @@ impl Trainer {
             Engine::Burn { device, model, optim, huber: HuberLossConfig::new(cfg.optim.huber_delta as f32).init() }
         };
         let end = opts.stop_after.unwrap_or(cfg.optim.steps).min(cfg.optim.steps);
-        let bar = crate::progress::Bar::new(opts.progress, "train", "steps", Some(end.saturating_sub(start) as u64));
+        let bar = crate::progress::Bar::from(opts.progress, "train", "steps", start as u64, Some(end as u64));
         Ok(Trainer {
             cfg: cfg.clone(),
             dir,
@@ -271,8 +271,9 @@ impl Trainer {
             "loss {lv:.5} lr {lr:.2e} {rate:.1} patches/s{}",
             self.vals.last().map_or(String::new(), |v| format!(" val PSNR {:.2}", v.model.psnr_rgb))
         );
-        self.bar.set_message(format!("(step {done}/{}) {msg}", self.end));
-        self.bar.set_position((done - self.start) as u64);
+        // The step count is the bar's own (its position is the step), so count and text agree.
+        self.bar.set_message(msg);
+        self.bar.set_position(done as u64);
         Ok(())
     }
 
