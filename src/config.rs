@@ -246,7 +246,7 @@ impl Origin {
     pub fn locate(&self, key: &str) -> String {
         if let Some(s) = self.sets.iter().rev().find(|s| {
             let k = s.split_once('=').map_or(s.as_str(), |(k, _)| k).trim();
-            key == k || key.starts_with(&format!("{k}.")) || k.starts_with(&format!("{key}."))
+            key == k || key.starts_with(&format!("{k}.")) || key.starts_with(&format!("{k}[")) || k.starts_with(&format!("{key}."))
         }) {
             return format!("--set {s}");
         }
@@ -600,6 +600,14 @@ inputs = ["blur"]
         for ((key, from), m) in want.iter().zip(&msgs) {
             assert!(m.starts_with(&format!("{key}: ")) && m.ends_with(&format!("({from})")), "{m}");
         }
+    }
+
+    #[test]
+    fn an_element_of_a_list_given_by_set_is_blamed_on_the_set() {
+        let sets = vec!["transforms.noise.sigma=[0.0, nan]".to_string()];
+        let origin = Origin::new("pipelines/generate.toml (embedded)", Some(include_str!("../pipelines/generate.toml")), &sets);
+        assert_eq!(origin.locate("transforms.noise.sigma[1]"), "--set transforms.noise.sigma=[0.0, nan]");
+        assert!(origin.locate("transforms.noise.seed").starts_with("pipelines/generate.toml (embedded)"));
     }
 
     #[test]
