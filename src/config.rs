@@ -17,7 +17,7 @@
 //! inputs = ["blur"]
 //! ```
 
-use crate::optics::ConfigError;
+use crate::checks::ConfigError;
 use crate::stage::{Role, StageKind};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;

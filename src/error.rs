@@ -9,7 +9,7 @@ pub enum Error {
     #[error("{}: {cause}", path.display())]
     Io { path: PathBuf, cause: std::io::Error },
     #[error("{}", .0.iter().map(|e| e.to_string()).collect::<Vec<_>>().join("\n"))]
-    Config(Vec<crate::optics::ConfigError>),
+    Config(Vec<crate::checks::ConfigError>),
     #[error("{0}")]
     Invalid(String),
     /// A stage of a pipeline failed; the cause is kept (and printed after it).
@@ -64,8 +64,8 @@ impl Error {
     }
 }
 
-impl From<crate::optics::ConfigError> for Error {
-    fn from(e: crate::optics::ConfigError) -> Self {
+impl From<crate::checks::ConfigError> for Error {
+    fn from(e: crate::checks::ConfigError) -> Self {
         Error::Config(vec![e])
     }
 }

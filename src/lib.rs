@@ -16,6 +16,7 @@
 // more plainly than zipped iterators; and they take their sizes as plain arguments.
 #![allow(clippy::needless_range_loop, clippy::too_many_arguments, clippy::type_complexity)]
 
+pub mod checks;
 pub mod cli;
 pub mod commands;
 pub mod config;

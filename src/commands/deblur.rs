@@ -52,7 +52,7 @@ impl DeblurFile {
         let f: DeblurFile = toml::Value::Table(table)
             .try_into()
             .map_err(|e: toml::de::Error| Error::ConfigText(format!("{origin}: {}", e.to_string().trim())))?;
-        let mut c = crate::optics::config::Checker::new("deblur");
+        let mut c = crate::checks::Checker::new("deblur");
         c.range_usize("tile", f.deblur.tile, 16, 8192);
         if f.deblur.overlap * 2 > f.deblur.tile {
             c.fail("overlap", format!("{} is more than half the tile ({})", f.deblur.overlap, f.deblur.tile));

@@ -7,6 +7,8 @@
 //! the length of the motion, and every sigma of a window shares the same noise pattern (scaled),
 //! so the columns differ only in the noise level.
 
+use crate::checks::Checker;
+use crate::checks::ConfigError;
 use crate::frame::Frame;
 use crate::imaging::blur::Blurrer;
 use crate::imaging::{read_out, to_8bit};
@@ -16,9 +18,8 @@ use crate::io::write_atomic;
 use crate::metrics::{quality, Quality};
 use crate::model::fast::FastNet;
 use crate::model::infer::{run_frame, Tiling};
-use crate::optics::config::Checker;
 use crate::optics::transfer::{Curve, Encoder};
-use crate::optics::{Camera, CameraConfig, ConfigError, OpticsConfig};
+use crate::optics::{Camera, CameraConfig, OpticsConfig};
 use crate::plot::{Canvas, Panel};
 use crate::rng::{hash, hash_str};
 use crate::{Error, Result};

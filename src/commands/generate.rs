@@ -249,7 +249,7 @@ pub fn command(a: ValidateArgs) -> anyhow::Result<()> {
         }
     }
     if bad > 0 {
-        return Err(crate::Error::Config(vec![crate::optics::ConfigError {
+        return Err(crate::Error::Config(vec![crate::checks::ConfigError {
             key: "validate".into(),
             message: format!("{bad} of {} pipeline files have errors", pipelines.len()),
         }])

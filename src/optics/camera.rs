@@ -14,8 +14,9 @@
 //! assert_eq!(window.len(), 9);
 //! ```
 
-use super::config::{Axis, CameraConfig, CameraKind, ConfigError, OpticsConfig, PsiSchedule};
+use super::config::{Axis, CameraConfig, CameraKind, OpticsConfig, PsiSchedule};
 use super::psf::{Lens, Psf};
+use crate::checks::ConfigError;
 use std::collections::HashMap;
 use std::sync::{Arc, Mutex};
 

@@ -3,6 +3,7 @@
 //!
 //! Every struct rejects unknown keys so that a typo is an error that names the key.
 
+use crate::checks::{Checker, ConfigError};
 use serde::{Deserialize, Serialize};
 
 /// One phase ring of the aperture mask, in normalised pupil radius (0 = centre, 1 = rim).
@@ -115,45 +116,6 @@ impl Default for OpticsConfig {
             pixel_subsamples: 3,
             pupil_samples: 128,
             trim_energy: 5e-3,
-        }
-    }
-}
-
-/// A problem with a configuration value, naming its key.
-#[derive(Debug, Clone, PartialEq)]
-pub struct ConfigError {
-    pub key: String,
-    pub message: String,
-}
-
-impl std::fmt::Display for ConfigError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}: {}", self.key, self.message)
-    }
-}
-
-/// Collects errors under a key prefix.
-pub(crate) struct Checker<'a> {
-    prefix: &'a str,
-    pub errors: Vec<ConfigError>,
-}
-
-impl<'a> Checker<'a> {
-    pub fn new(prefix: &'a str) -> Self {
-        Checker { prefix, errors: Vec::new() }
-    }
-    pub fn fail(&mut self, key: &str, message: impl Into<String>) {
-        let key = if self.prefix.is_empty() { key.to_string() } else { format!("{}.{key}", self.prefix) };
-        self.errors.push(ConfigError { key, message: message.into() });
-    }
-    pub fn range(&mut self, key: &str, v: f64, lo: f64, hi: f64) {
-        if !(v >= lo && v <= hi) {
-            self.fail(key, format!("{v} is out of range (expected {lo} to {hi})"));
-        }
-    }
-    pub fn range_usize(&mut self, key: &str, v: usize, lo: usize, hi: usize) {
-        if !(lo..=hi).contains(&v) {
-            self.fail(key, format!("{v} is out of range (expected {lo} to {hi})"));
         }
     }
 }

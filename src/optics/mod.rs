@@ -13,5 +13,5 @@ pub mod psf;
 pub mod transfer;
 
 pub use camera::{CacheStats, Camera, SubframeKernel};
-pub use config::{Axis, CameraConfig, CameraKind, ConfigError, Dispersion, OpticsConfig, PsiSchedule, Ring, Spectrum};
+pub use config::{Axis, CameraConfig, CameraKind, Dispersion, OpticsConfig, PsiSchedule, Ring, Spectrum};
 pub use psf::{Lens, Psf};

@@ -2,8 +2,8 @@
 
 use super::shards::default_dir;
 use super::{BuildContext, Built, Counters, Sink, StageConfig};
+use crate::checks::ConfigError;
 use crate::frame::Item;
-use crate::optics::ConfigError;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 

@@ -6,11 +6,12 @@
 
 use super::patches::Selector;
 use super::{BuildContext, Built, Counters, Emit, Needs, StageConfig, StageError, StageResult, Transform};
+use crate::checks::Checker;
+use crate::checks::ConfigError;
 use crate::frame::{Frame, Img, Input, Item, Pair, Sample};
 use crate::imaging::blur::Blurrer;
-use crate::optics::config::Checker;
 use crate::optics::transfer::Curve;
-use crate::optics::{Camera, CameraConfig, ConfigError, OpticsConfig};
+use crate::optics::{Camera, CameraConfig, OpticsConfig};
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::sync::Arc;

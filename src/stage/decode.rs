@@ -2,8 +2,8 @@
 
 use super::input::{check_size, VIDEO_EXTS};
 use super::{BuildContext, Built, Counters, Emit, InputList, Needs, Source, StageConfig};
+use crate::checks::ConfigError;
 use crate::frame::{Input, Item};
-use crate::optics::ConfigError;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::sync::atomic::Ordering;

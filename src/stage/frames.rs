@@ -4,9 +4,9 @@
 
 use super::shards::{default_dir, png_bytes};
 use super::{BuildContext, Built, Counters, Sink, StageConfig};
+use crate::checks::ConfigError;
 use crate::frame::{Img, Item, Pair, Sample};
 use crate::io::{exr, write_atomic};
-use crate::optics::ConfigError;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::sync::Arc;
@@ -60,7 +60,7 @@ pub enum Layout {
 impl StageConfig for FramesConfig {
     super::wiring!(sink, Samples);
     fn validate(&self, key: &str) -> Vec<ConfigError> {
-        let mut c = crate::optics::config::Checker::new(key);
+        let mut c = crate::checks::Checker::new(key);
         c.range("test_fraction", self.test_fraction, 0.0, 1.0);
         if self.layout != Layout::Folders && self.format == ImageFormat::Exr {
             c.fail("format", "the gopro and basicsr layouts are 8-bit PNG");

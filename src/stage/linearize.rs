@@ -1,9 +1,9 @@
 //! `linearize`: marks frames as linear light through a transfer curve.
 
 use super::{BuildContext, Built, Emit, StageConfig, StageResult, Transform};
+use crate::checks::ConfigError;
 use crate::frame::{Frame, Item};
 use crate::optics::transfer::Curve;
-use crate::optics::ConfigError;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 

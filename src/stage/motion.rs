@@ -9,7 +9,7 @@
 //! (cut-outs with their own anti-aliased alpha, or shapes cut from the photo with a one-pixel
 //! analytic edge) composited over the background in order, so nearer objects occlude farther ones.
 
-use crate::optics::config::Checker;
+use crate::checks::Checker;
 use crate::rng::Rng;
 use serde::{Deserialize, Serialize};
 

@@ -2,11 +2,11 @@
 //! fixed or drawn per window (scaled by the camera's light throughput), quantise to 8 bits.
 
 use super::{BuildContext, Built, Emit, StageConfig, StageResult, Transform};
+use crate::checks::Checker;
+use crate::checks::ConfigError;
 use crate::frame::{Img, Item};
 use crate::imaging::noise::quantise;
-use crate::optics::config::Checker;
 use crate::optics::transfer::{Curve, Encoder};
-use crate::optics::ConfigError;
 use crate::rng::{hash, hash_str, unit};
 use serde::{Deserialize, Serialize};
 

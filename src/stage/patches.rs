@@ -3,9 +3,9 @@
 //! first) and after it pick the same pixels.
 
 use super::{BuildContext, Built, Emit, Needs, StageConfig, StageError, StageResult, Transform};
+use crate::checks::Checker;
+use crate::checks::ConfigError;
 use crate::frame::{Img, Item, Pair};
-use crate::optics::config::Checker;
-use crate::optics::ConfigError;
 use crate::rng::{hash, hash_str, Rng};
 use serde::{Deserialize, Serialize};
 

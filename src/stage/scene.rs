@@ -2,9 +2,9 @@
 
 use super::input::emit_clip;
 use super::{BuildContext, Built, Counters, Emit, InputList, Needs, Source, StageConfig};
+use crate::checks::Checker;
+use crate::checks::ConfigError;
 use crate::frame::{Frame, FrameData, Input};
-use crate::optics::config::Checker;
-use crate::optics::ConfigError;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 

@@ -10,11 +10,11 @@
 //! CRC-32 are recorded, and a rerun redoes an input whose shards are missing or damaged.
 
 use super::{BuildContext, Built, Completed, Counters, Sink, StageConfig};
+use crate::checks::Checker;
+use crate::checks::ConfigError;
 use crate::frame::{Img, Input, InputInfo, Item, Pair, Sample};
 use crate::io::{png as png_io, tar, write_atomic};
-use crate::optics::config::Checker;
 use crate::optics::transfer::Curve;
-use crate::optics::ConfigError;
 use serde::{Deserialize, Serialize};
 use std::fs::File;
 use std::io::{BufWriter, Write};

@@ -5,9 +5,9 @@
 use super::input::emit_clip;
 use super::motion::{MotionConfig, Sprite, WindowMotion};
 use super::{BuildContext, Built, Counters, Emit, InputList, Needs, Source, StageConfig};
+use crate::checks::Checker;
+use crate::checks::ConfigError;
 use crate::frame::{Frame, FrameData, Input, Item};
-use crate::optics::config::Checker;
-use crate::optics::ConfigError;
 use crate::rng::{hash, hash_str, Rng};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;

@@ -2,8 +2,8 @@
 //! itself is [`crate::train`]).
 
 use super::{BuildContext, Built, Sink, StageConfig};
+use crate::checks::ConfigError;
 use crate::model::Arch;
-use crate::optics::ConfigError;
 use crate::rng::{hash, hash_str, Rng};
 use crate::train::{
     d_ckpt, d_shuffle, d_true, d_val_fraction, DataConfig, OptimConfig, OutputConfig, Pair, TrainConfig, TrainOptions, TrainReport,

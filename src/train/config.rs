@@ -195,8 +195,8 @@ pub(crate) fn d_ckpt() -> usize {
 
 impl TrainConfig {
     /// Every value error, each naming its key.
-    pub fn validate(&self) -> Vec<crate::optics::ConfigError> {
-        let mut c = crate::optics::config::Checker::new("");
+    pub fn validate(&self) -> Vec<crate::checks::ConfigError> {
+        let mut c = crate::checks::Checker::new("");
         match self.model {
             Arch::Unet { base } => c.range_usize("model.base", base, 1, 256),
             Arch::Shallow { width } => c.range_usize("model.width", width, 1, 1024),
