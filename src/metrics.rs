@@ -136,4 +136,22 @@ mod tests {
         // White is Y 235, black Y 16.
         assert!((luma(&[255, 255, 255])[0] - 235.0).abs() < 1e-9 && (luma(&[0, 0, 0])[0] - 16.0).abs() < 1e-12);
     }
+
+    #[test]
+    fn ssim_and_psnr_of_a_textured_pair_match_scikit_image() {
+        // The fixture's cat fur against itself plus a fixed pattern of -30 to +30 levels, clipped.
+        // Reference values from scikit-image 0.26 (structural_similarity with gaussian_weights,
+        // sigma 1.5, use_sample_covariance=False, data_range 255, per channel then the mean;
+        // peak_signal_noise_ratio), computed once:
+        //   a = PIL RGB of fixtures/chelsea-160x128.png as int64; i = arange(a.size).reshape(a.shape)
+        //   b = clip(a + (i * 7919) % 61 - 30, 0, 255); Y = 16 + (65.481 R + 128.553 G + 24.966 B) / 255
+        let png = std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/chelsea-160x128.png")).unwrap();
+        let (w, h, a) = crate::io::png::read_rgb8(&png).unwrap();
+        let b: Vec<u8> = a.iter().enumerate().map(|(i, &v)| (v as i64 + (i as i64 * 7919) % 61 - 30).clamp(0, 255) as u8).collect();
+        let q = quality(&a, &b, w, h);
+        assert!((q.ssim_rgb - 0.5175354863199558).abs() < 1e-9, "{q:?}");
+        assert!((q.psnr_rgb - 23.29367820419392).abs() < 1e-9, "{q:?}");
+        assert!((q.ssim_y - 0.6902786998549327).abs() < 1e-9, "{q:?}");
+        assert!((q.psnr_y - 27.81677881444374).abs() < 1e-9, "{q:?}");
+    }
 }
