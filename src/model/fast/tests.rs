@@ -260,3 +260,29 @@ fn adam_state_round_trips() {
     assert_eq!((a.time, &a.m, &a.v), (b.time, &b.m, &b.v));
     assert!(Adam::from_bytes(b"{}\n").is_err());
 }
+
+/// A tensor of the PyTorch golden fixtures (`fixtures/pytorch/make.py`).
+fn golden(name: &str) -> (Vec<usize>, Vec<f32>) {
+    let p = format!("{}/fixtures/pytorch/{name}.npy", env!("CARGO_MANIFEST_DIR"));
+    crate::io::npy::read_f32(&std::fs::read(&p).unwrap_or_else(|e| panic!("{p}: {e}"))).unwrap()
+}
+
+#[test]
+fn a_convolution_and_a_whole_unet_match_outputs_pytorch_made() {
+    // PyTorch 2.15 CPU made these once; the same numbers must come out here without torch.
+    let (s, x) = golden("conv_in");
+    let ((_, w), (_, b), (so, want)) = (golden("conv_weight"), golden("conv_bias"), golden("conv_out"));
+    let y = kernels::conv_forward(&T4::new(s[0], s[1], s[2], s[3], x), &w, Some(&b), so[1], 3);
+    assert_eq!((y.n, y.c, y.h, y.w), (so[0], so[1], so[2], so[3]));
+    assert!(rel(&y.d, &want) < 1e-6, "conv: relative error {}", rel(&y.d, &want));
+
+    // A U-Net of base 4 with random weights and BatchNorm statistics, in PyTorch's names.
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures/pytorch/unet4.safetensors");
+    let (net, arch) = crate::model::checkpoint::load_model(&path, &Device::flex()).unwrap();
+    assert_eq!(arch, crate::model::Arch::Unet { base: 4 });
+    let (s, x) = golden("unet4_in");
+    let (so, want) = golden("unet4_out");
+    let y = FastNet::from_net(&net).forward(&T4::new(s[0], s[1], s[2], s[3], x));
+    assert_eq!(vec![y.n, y.c, y.h, y.w], so);
+    assert!(rel(&y.d, &want) < 1e-5, "U-Net: relative error {}", rel(&y.d, &want));
+}
