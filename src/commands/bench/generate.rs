@@ -31,6 +31,65 @@ pub struct GenerateBench {
     pub fft_floor: FftFloor,
     /// Peak memory of full-frame generation on a 3840x2160 clip (2 windows).
     pub peak_rss_mb_4k: Option<f64>,
+    /// The same physics in SciPy and PyTorch (`benches/peers_generate.py`), where installed.
+    pub peers: Vec<PeerRow>,
+}
+
+/// A Python peer of whole-frame coded generation, timed on the same clip and threads.
+#[derive(Debug, serde::Serialize)]
+pub struct PeerRow {
+    pub peer: String,
+    pub version: String,
+    pub subframes_per_s_median: f64,
+    /// Our whole-frame coded speed over the peer's (above 1: we are faster).
+    pub ours_over_peer: f64,
+}
+
+/// Times `benches/peers_generate.py` for SciPy and PyTorch (each where [`super::train::python`]
+/// imports it) on `clip`, `repeats` times, with the kernels of the default coded camera.
+#[cfg(feature = "ffmpeg")]
+fn peers(clip: &std::path::Path, (w, h): (usize, usize), dir: &std::path::Path, repeats: usize, ours: f64) -> Vec<PeerRow> {
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/peers_generate.py");
+    let python = python();
+    let has = |m: &str| std::process::Command::new(&python).args(["-c", &format!("import numpy, {m}")]).stderr(std::process::Stdio::null()).status().is_ok_and(|s| s.success());
+    let kernels = dir.join("kernels.npy");
+    let made = std::env::current_exe().ok().is_some_and(|exe| {
+        std::process::Command::new(exe)
+            .args(["psf", "--camera", "phase_coded", "--window", "9", "--out"])
+            .arg(&kernels)
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success())
+    });
+    let mut rows = Vec::new();
+    for peer in ["scipy", "torch"] {
+        if !made || !script.exists() || !has(peer) {
+            eprintln!("bench: {peer} peer: not installed in {python} (PIPELINE_PYTHON), skipped");
+            continue;
+        }
+        let runs: Vec<serde_json::Value> = (0..repeats)
+            .filter_map(|_| {
+                let o = std::process::Command::new(&python)
+                    .arg(&script)
+                    .args([peer, &clip.display().to_string(), &w.to_string(), &h.to_string(), &kernels.display().to_string()])
+                    .arg(rayon::current_num_threads().to_string())
+                    .output()
+                    .ok()?;
+                serde_json::from_slice(&o.stdout).ok()
+            })
+            .collect();
+        let mut rates: Vec<f64> = runs.iter().filter_map(|r| r["subframes_per_s"].as_f64()).collect();
+        if rates.is_empty() {
+            eprintln!("bench: {peer} peer: failed to run {}", script.display());
+            continue;
+        }
+        let m = median(&mut rates);
+        let version = runs[0]["version"].as_str().unwrap_or("?").to_string();
+        eprintln!("bench: {peer} {version} peer of full frame: {m:.1} sub-frames/s (median of {}); ours {:.2}x as fast", rates.len(), ours / m);
+        rows.push(PeerRow { peer: peer.into(), version, subframes_per_s_median: m, ours_over_peer: ours / m });
+    }
+    rows
 }
 
 /// What a full-frame coded window must cost at least: its forward transforms (one per channel
@@ -220,6 +279,8 @@ pub fn generate(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> c
         floor.plane_ms_per_transform,
         floor.plane_ms_per_transform / floor.tiles as f64,
     );
+    let full = rows.iter().find(|r| r.mode == "full frame").map_or(f64::NAN, |r| r.subframes_per_s_median);
+    let peers = peers(&clip, (w, h), &dir, repeats, full);
     // Peak memory at 4K: two windows of full frames.
     let uhd = dir.join("bench-3840x2160.mp4");
     make_clip(&uhd, 3840, 2160, fps, 18.0 / fps as f64)?;
@@ -244,5 +305,6 @@ pub fn generate(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> c
         rows,
         fft_floor: floor,
         peak_rss_mb_4k: peak_4k,
+        peers,
     })
 }

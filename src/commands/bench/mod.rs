@@ -41,6 +41,11 @@ pub fn median(v: &mut [f64]) -> f64 {
     }
 }
 
+/// The Python that runs the PyTorch and SciPy baselines: `PIPELINE_PYTHON`, else `python3`.
+pub(super) fn python() -> String {
+    std::env::var("PIPELINE_PYTHON").unwrap_or_else(|_| "python3".into())
+}
+
 /// Peak resident memory (kB) since the last [`reset_peak_rss`], from /proc (Linux).
 pub fn peak_rss_kb() -> Option<u64> {
     let s = std::fs::read_to_string("/proc/self/status").ok()?;

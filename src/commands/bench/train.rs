@@ -146,11 +146,6 @@ pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize, with_bu
     Ok(out)
 }
 
-/// The Python that runs the PyTorch baseline: `PIPELINE_PYTHON`, else `python3`.
-pub(super) fn python() -> String {
-    std::env::var("PIPELINE_PYTHON").unwrap_or_else(|_| "python3".into())
-}
-
 /// `benches/torch_models.py` when [`python`] can import torch (the PyTorch baseline), else `None`.
 pub(super) fn torch_script() -> Option<std::path::PathBuf> {
     let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/torch_models.py");
