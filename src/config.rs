@@ -18,6 +18,7 @@
 //! ```
 
 use crate::checks::ConfigError;
+pub use crate::checks::Origin;
 use crate::stage::{Role, StageKind};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;
@@ -74,32 +75,6 @@ impl Plan {
     /// What the stages after stage `i` need of each input.
     pub fn needs_after(&self, i: usize) -> crate::stage::Needs {
         self.stages[i + 1..].iter().map(|(_, s)| s.config().needs()).fold(crate::stage::Needs::default(), |a, b| a.max(b))
-    }
-    /// The patches stage `i` may cut first: when it takes them and the stages after it up to a
-    /// patch stage all work pixel by pixel.
-    pub fn crop_for(&self, i: usize) -> Option<crate::stage::patches::Selector> {
-        if !self.stages[i].1.config().takes_crop() {
-            return None;
-        }
-        self.stages[i + 1..].iter().map(|(_, s)| s.config()).find(|c| !c.per_pixel()).and_then(|c| c.crop_selector())
-    }
-    /// What a source (stage `i` = 0) needs to decode of each frame: with patches cut before the
-    /// blur and only position-keeping stages (linearize) between it and the blur, the patches
-    /// plus the kernel margin of the windows each frame belongs to.
-    ///
-    /// # Errors
-    /// The blur's kernels cannot be made.
-    pub fn reads_for(&self, i: usize, seed: u64) -> crate::Result<Option<crate::stage::patches::ReadRegions>> {
-        if i != 0 || self.stages.len() < 2 {
-            return Ok(None);
-        }
-        let Some(j) = (1..self.stages.len()).find(|&j| !self.stages[j].1.config().keeps_positions()) else {
-            return Ok(None);
-        };
-        let (Some(selector), Some(geometry)) = (self.crop_for(j), self.stages[j].1.config().crop_geometry()?) else {
-            return Ok(None);
-        };
-        Ok(Some(crate::stage::patches::ReadRegions { selector, seed, geometry }))
     }
     /// Sub-frames per window of the plan (0 without a blur).
     pub fn subframes_per_window(&self) -> usize {
@@ -225,81 +200,53 @@ fn edit_distance(a: &str, b: &str) -> usize {
     prev[b.len()]
 }
 
-/// Where the values of a pipeline came from: a file (its text, for line numbers) and the
-/// `--set` overrides applied on top. Error messages say which one to fix.
-#[derive(Debug, Clone, Default)]
-pub struct Origin {
-    pub name: String,
-    pub text: Option<String>,
-    pub sets: Vec<String>,
-}
+/// The default generate pipeline, embedded.
+pub const GENERATE_TOML: &str = include_str!("../pipelines/generate.toml");
 
-impl Origin {
-    /// `name` with its text read from disk when it is a file.
-    pub fn new(name: &str, text: Option<&str>, sets: &[String]) -> Origin {
-        let text = text.map(str::to_string).or_else(|| std::fs::read_to_string(name).ok());
-        Origin { name: name.to_string(), text, sets: sets.to_vec() }
-    }
-
-    /// `--set k=v` when an override gave `key` (or a table above it), else `file line N` (the
-    /// line of the key under its table header), else the file.
-    pub fn locate(&self, key: &str) -> String {
-        if let Some(s) = self.sets.iter().rev().find(|s| {
-            let k = s.split_once('=').map_or(s.as_str(), |(k, _)| k).trim();
-            key == k || key.starts_with(&format!("{k}.")) || key.starts_with(&format!("{k}[")) || k.starts_with(&format!("{key}."))
-        }) {
-            return format!("--set {s}");
-        }
-        match self.text.as_deref().and_then(|t| line_of(t, key)) {
-            Some(n) => format!("{} line {n}", self.name),
-            None => self.name.clone(),
+/// The file given with `--config`, or the embedded default named `name`, with `--set` applied;
+/// and the name to put in error messages.
+pub fn load_or_embedded(
+    config: Option<&std::path::Path>,
+    embedded: &str,
+    name: &str,
+    sets: &[String],
+) -> crate::Result<(toml::Table, String)> {
+    match config {
+        Some(p) => Ok((load(p, sets)?, p.display().to_string())),
+        None => {
+            let origin = format!("{name} (embedded)");
+            Ok((parse(embedded, &origin, sets)?, origin))
         }
     }
 }
 
-impl Origin {
-    /// The errors, each saying where its value came from.
-    pub fn errors(&self, mut errs: Vec<ConfigError>) -> crate::Error {
-        for e in &mut errs {
-            e.message = format!("{} ({})", e.message, self.locate(&e.key));
-        }
-        crate::Error::Config(errs)
-    }
-}
-
-impl From<&str> for Origin {
-    fn from(name: &str) -> Origin {
-        Origin { name: name.into(), text: None, sets: Vec::new() }
-    }
-}
-
-/// The 1-based line of a dotted key in TOML text: under the longest `[table]` header that is a
-/// prefix of the key, the first `rest = ...` line (or the header itself for a table).
-fn line_of(text: &str, key: &str) -> Option<usize> {
-    let lines: Vec<&str> = text.lines().collect();
-    let parts: Vec<&str> = key.split('.').collect();
-    for cut in (0..=parts.len()).rev() {
-        let (table, rest) = (parts[..cut].join("."), parts[cut..].join("."));
-        let start = if cut == 0 {
-            Some(0)
-        } else {
-            lines.iter().position(|l| l.trim().strip_prefix('[').and_then(|l| l.strip_suffix(']')).is_some_and(|h| h.trim() == table))
-        };
-        let Some(start) = start else { continue };
-        if rest.is_empty() {
-            return Some(start + 1);
-        }
-        for (i, l) in lines.iter().enumerate().skip(start + usize::from(cut > 0)) {
-            let t = l.trim();
-            if t.starts_with('[') {
-                break;
-            }
-            if t.strip_prefix(rest.as_str()).is_some_and(|r| r.trim_start().starts_with('=')) {
-                return Some(i + 1);
+/// The pipeline `pipeline generate` runs: `config` (default: the embedded
+/// pipelines/generate.toml) with every source reading `paths` (when given), then the `sets`
+/// applied; and where each value came from, for error messages. The Python dataset builds its
+/// plan here too, so it makes what `generate` makes.
+///
+/// # Errors
+/// An unreadable or malformed file, a pipeline without sources, a bad `--set`.
+pub fn generate_table(
+    config: Option<&std::path::Path>,
+    paths: &[String],
+    sets: &[String],
+) -> crate::Result<(toml::Table, crate::config::Origin)> {
+    let (mut table, origin) = load_or_embedded(config, GENERATE_TOML, "pipelines/generate.toml", &[])?;
+    if !paths.is_empty() {
+        let sources = table
+            .get_mut("sources")
+            .and_then(|s| s.as_table_mut())
+            .ok_or_else(|| crate::Error::ConfigText(format!("{origin}: the pipeline has no [sources]")))?;
+        for (_, src) in sources.iter_mut() {
+            if let Some(t) = src.as_table_mut() {
+                t.insert("paths".into(), toml::Value::Array(paths.iter().map(|v| toml::Value::String(v.clone())).collect()));
             }
         }
     }
-    None
+    apply_sets(&mut table, sets).map_err(crate::Error::ConfigText)?;
+    let text = config.is_none().then_some(GENERATE_TOML);
+    Ok((table, Origin::new(&origin, text, sets)))
 }
 
 /// Deserialises `table` as `T`, collecting every type error and unknown key (serde stops at the
@@ -600,25 +547,6 @@ inputs = ["blur"]
         for ((key, from), m) in want.iter().zip(&msgs) {
             assert!(m.starts_with(&format!("{key}: ")) && m.ends_with(&format!("({from})")), "{m}");
         }
-    }
-
-    #[test]
-    fn an_element_of_a_list_given_by_set_is_blamed_on_the_set() {
-        let sets = vec!["transforms.noise.sigma=[0.0, nan]".to_string()];
-        let origin = Origin::new("pipelines/generate.toml (embedded)", Some(include_str!("../pipelines/generate.toml")), &sets);
-        assert_eq!(origin.locate("transforms.noise.sigma[1]"), "--set transforms.noise.sigma=[0.0, nan]");
-        assert!(origin.locate("transforms.noise.seed").starts_with("pipelines/generate.toml (embedded)"));
-    }
-
-    #[test]
-    fn keys_are_found_on_their_lines() {
-        let t = "seed = 1\n[a]\nx = 1\n[a.b]\ny = 2\n[c]\ny = 3\n";
-        assert_eq!(line_of(t, "seed"), Some(1));
-        assert_eq!(line_of(t, "a.x"), Some(3));
-        assert_eq!(line_of(t, "a.b.y"), Some(5));
-        assert_eq!(line_of(t, "c.y"), Some(7));
-        assert_eq!(line_of(t, "c"), Some(6));
-        assert_eq!(line_of(t, "d.z"), None);
     }
 
     #[test]

@@ -34,6 +34,7 @@ pub mod progress;
 pub mod provenance;
 pub mod recon;
 pub mod rng;
+pub mod sample;
 pub mod scene;
 pub mod signal;
 pub mod stage;

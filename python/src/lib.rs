@@ -36,7 +36,7 @@ fn fork_guard() -> PyResult<()> {
 
 /// The plan `pipeline generate` would run with these arguments, every error named.
 fn plan(paths: &[String], config: Option<&std::path::Path>, sets: &[String]) -> PyResult<pipeline::config::Plan> {
-    let (table, origin) = pipeline::commands::generate::generate_table(config, paths, sets).map_err(value_err)?;
+    let (table, origin) = pipeline::config::generate_table(config, paths, sets).map_err(value_err)?;
     pipeline::config::plan_from(table, &origin).map_err(value_err)
 }
 
@@ -89,7 +89,7 @@ fn planar(rgb: &[u8], w: usize, h: usize) -> Vec<u8> {
 
 fn ready(s: &Sample, p: &Pair) -> Ready {
     let rgb = |img| pipeline::imaging::img_rgb8(img, p.w, p.h, s.curve);
-    let (key, meta) = (pipeline::stage::shards::sample_key(s, p), pipeline::stage::shards::meta_json(s, p));
+    let (key, meta) = (pipeline::sample::sample_key(s, p), pipeline::sample::meta_json(s, p));
     Ready {
         w: p.w,
         h: p.h,

@@ -60,8 +60,7 @@ pub struct ValidateArgs {
     pub sets: Vec<String>,
 }
 
-/// The default generate pipeline, embedded.
-pub const GENERATE_TOML: &str = include_str!("../../pipelines/generate.toml");
+pub use crate::config::{generate_table, GENERATE_TOML};
 
 fn env_usize(name: &str) -> anyhow::Result<Option<usize>> {
     match std::env::var(name) {
@@ -188,35 +187,6 @@ pub fn describe(table: toml::Table, origin: &crate::config::Origin) -> crate::Re
 pub fn generate(a: GenerateArgs) -> anyhow::Result<()> {
     let (table, origin) = generate_table(a.config.as_deref(), &a.videos, &a.common.sets)?;
     run_plan(table, &origin, a.out.as_ref(), &a.common)
-}
-
-/// The pipeline `pipeline generate` runs: `config` (default: the embedded
-/// pipelines/generate.toml) with every source reading `paths` (when given), then the `sets`
-/// applied; and where each value came from, for error messages. The Python dataset builds its
-/// plan here too, so it makes what `generate` makes.
-///
-/// # Errors
-/// An unreadable or malformed file, a pipeline without sources, a bad `--set`.
-pub fn generate_table(
-    config: Option<&std::path::Path>,
-    paths: &[String],
-    sets: &[String],
-) -> crate::Result<(toml::Table, crate::config::Origin)> {
-    let (mut table, origin) = super::load_or_embedded(config, GENERATE_TOML, "pipelines/generate.toml", &[])?;
-    if !paths.is_empty() {
-        let sources = table
-            .get_mut("sources")
-            .and_then(|s| s.as_table_mut())
-            .ok_or_else(|| crate::Error::ConfigText(format!("{origin}: the pipeline has no [sources]")))?;
-        for (_, src) in sources.iter_mut() {
-            if let Some(t) = src.as_table_mut() {
-                t.insert("paths".into(), toml::Value::Array(paths.iter().map(|v| toml::Value::String(v.clone())).collect()));
-            }
-        }
-    }
-    crate::config::apply_sets(&mut table, sets).map_err(crate::Error::ConfigText)?;
-    let text = config.is_none().then_some(GENERATE_TOML);
-    Ok((table, crate::config::Origin::new(&origin, text, sets)))
 }
 
 /// Runs `pipeline run`: a pipeline file.

@@ -40,19 +40,4 @@ impl ConfigArgs {
     }
 }
 
-/// The file given with `--config`, or the embedded default named `name`, with `--set` applied;
-/// and the name to put in error messages.
-pub fn load_or_embedded(
-    config: Option<&std::path::Path>,
-    embedded: &str,
-    name: &str,
-    sets: &[String],
-) -> crate::Result<(toml::Table, String)> {
-    match config {
-        Some(p) => Ok((crate::config::load(p, sets)?, p.display().to_string())),
-        None => {
-            let origin = format!("{name} (embedded)");
-            Ok((crate::config::parse(embedded, &origin, sets)?, origin))
-        }
-    }
-}
+pub use crate::config::load_or_embedded;

@@ -2,11 +2,12 @@
 //! layouts deblurring loaders read: per-clip folders, DeepDeblur's GoPro layout with a train/test
 //! split by source video, or BasicSR's paired `lq/` + `gt/` folders with a meta-info file.
 
-use super::shards::{default_dir, png_bytes};
+use super::shards::default_dir;
 use super::{BuildContext, Built, Counters, Sink, StageConfig};
 use crate::checks::ConfigError;
 use crate::frame::{Img, Item, Pair, Sample};
 use crate::io::{exr, write_atomic};
+use crate::sample::png_bytes;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::sync::Arc;

@@ -411,3 +411,20 @@ mod tests {
         }
     }
 }
+
+/// The "Adding a stage kind" example of docs/STRUCTURE.md, compiled as written there (build.rs
+/// copies it out of the document), so the recipe a newcomer follows cannot go stale.
+#[cfg(test)]
+mod recipe {
+    include!(concat!(env!("OUT_DIR"), "/stage_recipe.rs"));
+
+    #[test]
+    fn the_recipe_in_structure_md_compiles_and_is_a_samples_transform() {
+        let c = FlipConfig { inputs: vec!["noise".into()] };
+        assert!(c.validate("transforms.flip").is_empty());
+        assert_eq!(c.role(), super::Role::Transform);
+        assert_eq!(c.inputs(), ["noise".to_string()]);
+        assert_eq!(c.kinds(), (super::Kind::Samples, super::Kind::Samples));
+        let _: &dyn Transform = &Flip;
+    }
+}

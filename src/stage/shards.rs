@@ -12,9 +12,9 @@
 use super::{BuildContext, Built, Completed, Counters, Sink, StageConfig};
 use crate::checks::Checker;
 use crate::checks::ConfigError;
-use crate::frame::{Img, Input, InputInfo, Item, Pair, Sample};
-use crate::io::{png as png_io, tar, write_atomic};
-use crate::optics::transfer::Curve;
+use crate::frame::{Input, InputInfo, Item, Pair, Sample};
+use crate::io::{tar, write_atomic};
+use crate::sample::{meta_json, png_bytes, sample_key};
 use serde::{Deserialize, Serialize};
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -87,64 +87,6 @@ impl StageConfig for ShardsConfig {
             ctx.counters.clone(),
         ))))
     }
-}
-
-/// A PNG of an image (quantising linear light without noise).
-pub(crate) fn png_bytes(img: &Img, w: usize, h: usize, curve: Curve) -> Vec<u8> {
-    let mut buf = Vec::new();
-    png_io::write_rgb8(&mut buf, w, h, &crate::imaging::img_rgb8(img, w, h, curve)).expect("png into memory");
-    buf
-}
-
-/// The per-sample JSON.
-#[derive(Serialize)]
-struct SampleMeta<'a> {
-    video: &'a str,
-    /// The input's key (file stem and path hash), the same in every run that reads the file.
-    input: &'a str,
-    window: u64,
-    frames: [u64; 2],
-    camera: &'static str,
-    psi: &'a [f64],
-    curve: &'static str,
-    sigma: Option<f64>,
-    frame_size: [usize; 2],
-    patch: Option<PatchMeta>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    motion: Option<serde_json::Value>,
-}
-
-#[derive(Serialize)]
-struct PatchMeta {
-    index: u32,
-    x: usize,
-    y: usize,
-    w: usize,
-    h: usize,
-}
-
-pub fn sample_key(s: &Sample, p: &Pair) -> String {
-    match p.patch {
-        Some(i) => format!("{}_{:06}_{:03}", s.input.key, s.window, i),
-        None => format!("{}_{:06}", s.input.key, s.window),
-    }
-}
-
-pub fn meta_json(s: &Sample, p: &Pair) -> Vec<u8> {
-    let m = SampleMeta {
-        video: &s.input.path,
-        input: &s.input.key,
-        window: s.window,
-        frames: [s.first_frame, s.first_frame + s.frames as u64 - 1],
-        camera: s.camera.name(),
-        psi: &s.psi,
-        curve: s.curve.name(),
-        sigma: s.sigma,
-        frame_size: [s.frame_width, s.frame_height],
-        patch: p.patch.map(|index| PatchMeta { index, x: p.x, y: p.y, w: p.w, h: p.h }),
-        motion: s.motion.as_deref().and_then(|m| serde_json::from_str(m).ok()),
-    };
-    serde_json::to_vec(&m).expect("json")
 }
 
 #[derive(Debug, Clone, Serialize, Deserialize)]
@@ -223,7 +165,7 @@ pub struct ManifestInput {
     pub windows: u64,
     pub samples: usize,
     pub shards: Vec<ManifestShard>,
-    /// Hash of the settings that decide the samples' content ([`content_hash`]): a rerun with
+    /// Hash of the settings that decide the samples' content ([`crate::sample::content_hash`]): a rerun with
     /// other settings redoes the input instead of keeping samples made differently.
     #[serde(default)]
     pub settings: String,
@@ -237,26 +179,6 @@ impl ManifestInput {
     pub fn verify(&self, dir: &Path) -> std::result::Result<(), String> {
         self.shards.iter().try_for_each(|s| s.verify(dir))
     }
-}
-
-/// Hash of what decides the samples' content: the seed, the sources' and transforms' settings,
-/// minus input lists and thread counts (which change neither pixels nor keys).
-pub fn content_hash(resolved: &toml::Table) -> String {
-    fn strip(v: &toml::Value) -> toml::Value {
-        match v {
-            toml::Value::Table(t) => toml::Value::Table(
-                t.iter().filter(|(k, _)| !matches!(k.as_str(), "paths" | "threads")).map(|(k, v)| (k.clone(), strip(v))).collect(),
-            ),
-            v => v.clone(),
-        }
-    }
-    let mut t = toml::Table::new();
-    for k in ["seed", "sources", "transforms"] {
-        if let Some(v) = resolved.get(k) {
-            t.insert(k.into(), strip(v));
-        }
-    }
-    format!("{:016x}", crate::rng::hash_bytes(toml::to_string(&t).unwrap_or_default().as_bytes()))
 }
 
 #[derive(Debug, Clone, Default, Serialize, Deserialize)]
@@ -380,7 +302,7 @@ pub struct Shards {
     /// The manifest as last written (by any process), and an empty one to start from.
     pub manifest: Manifest,
     pub manifest_name: String,
-    /// [`content_hash`] of this run's settings, recorded with each input.
+    /// [`crate::sample::content_hash`] of this run's settings, recorded with each input.
     pub settings: String,
     pub counters: Arc<Counters>,
     pub failed: Vec<(String, String)>,

@@ -51,7 +51,13 @@ pub struct PeerRow {
 fn peers(clip: &std::path::Path, (w, h): (usize, usize), dir: &std::path::Path, repeats: usize, ours: f64) -> Vec<PeerRow> {
     let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/peers_generate.py");
     let python = python();
-    let has = |m: &str| std::process::Command::new(&python).args(["-c", &format!("import numpy, {m}")]).stderr(std::process::Stdio::null()).status().is_ok_and(|s| s.success());
+    let has = |m: &str| {
+        std::process::Command::new(&python)
+            .args(["-c", &format!("import numpy, {m}")])
+            .stderr(std::process::Stdio::null())
+            .status()
+            .is_ok_and(|s| s.success())
+    };
     let kernels = dir.join("kernels.npy");
     let made = std::env::current_exe().ok().is_some_and(|exe| {
         std::process::Command::new(exe)
@@ -86,7 +92,11 @@ fn peers(clip: &std::path::Path, (w, h): (usize, usize), dir: &std::path::Path, 
         }
         let m = median(&mut rates);
         let version = runs[0]["version"].as_str().unwrap_or("?").to_string();
-        eprintln!("bench: {peer} {version} peer of full frame: {m:.1} sub-frames/s (median of {}); ours {:.2}x as fast", rates.len(), ours / m);
+        eprintln!(
+            "bench: {peer} {version} peer of full frame: {m:.1} sub-frames/s (median of {}); ours {:.2}x as fast",
+            rates.len(),
+            ours / m
+        );
         rows.push(PeerRow { peer: peer.into(), version, subframes_per_s_median: m, ours_over_peer: ours / m });
     }
     rows
