@@ -6,9 +6,9 @@
 //! - `psf`: the PSF stack `pipeline psf --out x.npy` writes.
 
 use numpy::{IntoPyArray, PyArray3, PyArray4, PyArrayMethods, PyReadonlyArray3, PyUntypedArrayMethods};
-use pipeline::commands::psf::{PsfArgs, PsiList};
 use pipeline::frame::{Pair, Sample};
 use pipeline::graph::{Next, SampleStream};
+use pipeline::optics::request::PsfSpec;
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use std::collections::VecDeque;
@@ -218,29 +218,27 @@ fn psf<'py>(
 ) -> PyResult<Bound<'py, PyArray4<f32>>> {
     // "start:stop:count" or "a,b,c", read by the CLI's own parser (same values as --psi).
     let psi = match psi_spec {
-        Some(s) => Some(pipeline::commands::psf::parse_psi_list(&s).map_err(|e| PyValueError::new_err(format!("psi {s:?}: {e}")))?),
+        Some(s) => Some(pipeline::optics::request::parse_psi_list(&s).map_err(|e| PyValueError::new_err(format!("psi {s:?}: {e}")))?),
         None => psi,
     };
     let kind = serde_json::from_value(serde_json::Value::String(camera.into()))
         .map_err(|e| PyValueError::new_err(format!("camera {camera:?}: {e}")))?;
-    let args = PsfArgs {
+    let spec = PsfSpec {
         camera: kind,
-        psi: psi.map(PsiList),
-        window,
-        out: None,
+        psi,
+        window: window.map(usize::from),
         config,
         airy_radius_px,
         spectrum: None,
         dispersion: None,
         defocus_sign: None,
-        zoom: 4,
     };
     fork_guard()?;
     let (shape, data) = py
         .detach(|| {
-            let (optics, camera, req) = pipeline::commands::psf::resolve(&args)?;
-            let rows = pipeline::commands::psf::compute(&optics, &camera, &req)?;
-            Ok::<_, pipeline::Error>(pipeline::commands::psf::to_hwc(&rows))
+            let (optics, camera, req) = pipeline::optics::request::resolve(&spec)?;
+            let rows = pipeline::optics::request::compute(&optics, &camera, &req)?;
+            Ok::<_, pipeline::Error>(pipeline::optics::request::to_hwc(&rows))
         })
         .map_err(value_err)?;
     data.into_pyarray(py).reshape([shape[0], shape[1], shape[2], shape[3]])

@@ -1,7 +1,7 @@
 //! `pipeline generate`, `run` and `validate`: pipelines from the command line.
 
-use super::psf::OpticsFile;
 use crate::graph::RunOptions;
+use crate::optics::request::OpticsFile;
 use crate::progress::ProgressMode;
 use clap::Args;
 use std::path::PathBuf;

@@ -2,106 +2,13 @@
 //! paper's Fig. 2, a table) and for tools (`.npy` of shape (K, H, W, 3), linear `.exr`).
 
 use crate::io::{exr, font, npy, png as png_io, write_atomic};
-use crate::optics::{Camera, CameraConfig, CameraKind, Dispersion, Lens, OpticsConfig, Psf, Spectrum};
+pub use crate::optics::request::{check_psi, compute, parse_psi_list, resolve, to_hwc, PsfRequest, PsfRow, PsfSpec};
+use crate::optics::{CameraKind, Dispersion, Psf, Spectrum};
 use crate::{Error, Result};
 use clap::Args;
 use std::fmt::Write as _;
 use std::path::Path;
 use std::path::PathBuf;
-use std::sync::Arc;
-
-/// Parses `start:stop:count` (inclusive, evenly spaced) or a comma list of psi values.
-pub fn parse_psi_list(s: &str) -> std::result::Result<Vec<f64>, String> {
-    let num = |t: &str| t.trim().parse::<f64>().map_err(|_| format!("{t:?} is not a number"));
-    let v = if s.contains(':') {
-        let parts: Vec<&str> = s.split(':').collect();
-        if parts.len() != 3 {
-            return Err("expected start:stop:count, e.g. 0:8:33".into());
-        }
-        let (a, b) = (num(parts[0])?, num(parts[1])?);
-        let n: usize = parts[2].trim().parse().map_err(|_| format!("count {:?} is not a whole number", parts[2]))?;
-        match n {
-            0 => return Err("count must be at least 1".into()),
-            n if n > 10_000 => return Err(format!("count {n} is more than 10000 PSFs (each is a full image); ask for fewer")),
-            1 => vec![a],
-            _ => (0..n).map(|i| a + (b - a) * i as f64 / (n - 1) as f64).collect(),
-        }
-    } else {
-        s.split(',').map(num).collect::<std::result::Result<Vec<_>, _>>()?
-    };
-    check_psi(&v)?;
-    Ok(v)
-}
-
-/// psi values must be finite and within -50 to 50.
-///
-/// # Errors
-/// The first value outside, named.
-pub fn check_psi(v: &[f64]) -> std::result::Result<(), String> {
-    match v.iter().find(|p| !p.is_finite() || p.abs() > 50.0) {
-        Some(bad) => Err(format!("psi {bad} is out of range (expected -50 to 50)")),
-        None => Ok(()),
-    }
-}
-
-/// One row of the PSF table.
-#[derive(Debug, Clone)]
-pub struct PsfRow {
-    pub label: String,
-    pub psi: f64,
-    pub weight: f64,
-    pub shift: [f64; 2],
-    pub psf: Psf,
-}
-
-/// What to compute: the lens PSF over psi values, or the kernels of one exposure window.
-pub enum PsfRequest {
-    Psi(Vec<f64>),
-    Window(usize),
-}
-
-/// Computes the rows. For `Psi`, the lens is masked for `phase_coded` and clear otherwise; all
-/// rows share one size (the largest any needs after trimming).
-///
-/// # Errors
-/// A window whose `psi_values` do not match its length.
-pub fn compute(optics: &OpticsConfig, camera: &CameraConfig, req: &PsfRequest) -> Result<Vec<PsfRow>> {
-    match req {
-        PsfRequest::Psi(psis) => {
-            let lens = Lens::new(optics, camera.kind == CameraKind::PhaseCoded);
-            let full: Vec<Psf> = {
-                use rayon::prelude::*;
-                psis.par_iter().map(|&p| lens.psf(p, lens.support_half(p.abs()))).collect()
-            };
-            let half = full.iter().map(|p| p.needed_half(optics.trim_energy)).max().unwrap_or(0);
-            Ok(psis
-                .iter()
-                .zip(full)
-                .map(|(&psi, p)| PsfRow { label: format!("{psi:.3}"), psi, weight: 1.0, shift: [0.0; 2], psf: p.resized(half) })
-                .collect())
-        }
-        PsfRequest::Window(n) => {
-            let cam = Camera::new(optics, camera);
-            let w = cam.window(*n)?;
-            let half = w.iter().map(|k| k.half_extent()).max().unwrap_or(0);
-            Ok(w.iter()
-                .enumerate()
-                .map(|(i, k)| {
-                    // Unit-sum spatial kernel with the shift; the weight goes in the table.
-                    let unit = crate::optics::SubframeKernel { weight: 1.0, psf: Arc::clone(&k.psf), ..k.clone() };
-                    let channels = std::array::from_fn(|c| unit.render(c, half));
-                    PsfRow {
-                        label: format!("k={i}"),
-                        psi: k.psi,
-                        weight: k.weight,
-                        shift: k.shift,
-                        psf: Psf { size: 2 * half + 1, channels },
-                    }
-                })
-                .collect())
-        }
-    }
-}
 
 const NAMES: [&str; 3] = ["R", "G", "B"];
 
@@ -139,20 +46,6 @@ pub fn transitions(rows: &[PsfRow]) -> Vec<(f64, &'static str, &'static str)> {
             (a != b).then(|| (0.5 * (w[0].psi + w[1].psi), NAMES[a], NAMES[b]))
         })
         .collect()
-}
-
-/// (K, H, W, 3) float32, channels R, G, B.
-pub fn to_hwc(rows: &[PsfRow]) -> (Vec<usize>, Vec<f32>) {
-    let n = rows.first().map_or(0, |r| r.psf.size);
-    let mut data = Vec::with_capacity(rows.len() * n * n * 3);
-    for r in rows {
-        for i in 0..n * n {
-            for c in 0..3 {
-                data.push(r.psf.channels[c][i]);
-            }
-        }
-    }
-    (vec![rows.len(), n, n, 3], data)
 }
 
 /// Lays the tiles out in a grid of at most `per_row` columns, `gap` pixels apart, with a label
@@ -228,35 +121,6 @@ pub fn write(rows: &[PsfRow], out: &Path, zoom: usize) -> Result<()> {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn psi_lists_parse_and_bad_ones_say_why() {
-        assert_eq!(parse_psi_list("0:8:5").unwrap(), vec![0.0, 2.0, 4.0, 6.0, 8.0]);
-        assert_eq!(parse_psi_list("1, 2.5").unwrap(), vec![1.0, 2.5]);
-        assert!(parse_psi_list("0:8").unwrap_err().contains("start:stop:count"));
-        assert!(parse_psi_list("0:8:x").unwrap_err().contains("count"));
-        assert!(parse_psi_list("0:8:1000000").unwrap_err().contains("more than 10000"));
-        assert!(parse_psi_list("a").unwrap_err().contains("not a number"));
-        assert!(parse_psi_list("0,99").unwrap_err().contains("out of range"));
-    }
-
-    #[test]
-    fn window_rows_are_unit_sum_even_with_shifts_and_weights() {
-        let cam = CameraConfig { kind: CameraKind::Parabolic, ..Default::default() };
-        let rows = compute(&OpticsConfig::default(), &cam, &PsfRequest::Window(9)).unwrap();
-        assert_eq!(rows.len(), 9);
-        for r in &rows {
-            for c in 0..3 {
-                assert!((r.psf.channel_sum(c) - 1.0).abs() < 1e-5);
-            }
-        }
-        assert!(rows[0].shift[0] > rows[4].shift[0]);
-    }
-}
-
 #[derive(Args, Debug)]
 pub struct PsfArgs {
     /// Camera model. With --psi: phase_coded shows the masked lens, every other camera the clear
@@ -316,63 +180,18 @@ fn parse_sign(s: &str) -> Result<f64, String> {
     }
 }
 
-/// `[optics]` and `[camera]` read from a file.
-#[derive(serde::Deserialize, Default)]
-#[serde(deny_unknown_fields, default)]
-pub struct OpticsFile {
-    pub optics: OpticsConfig,
-    pub camera: Option<CameraConfig>,
-}
-
-/// The optics, camera and request the arguments describe (the file, then the flags over it),
-/// every value checked. The Python package's `psf()` fills a [`PsfArgs`] and calls this too.
-///
-/// # Errors
-/// An unreadable or malformed file, bad values (all named), --psi with --window.
-pub fn resolve(a: &PsfArgs) -> crate::Result<(OpticsConfig, CameraConfig, PsfRequest)> {
-    let file = match &a.config {
-        Some(p) => {
-            let text = std::fs::read_to_string(p).map_err(|e| Error::Io { path: p.clone(), cause: e })?;
-            toml::from_str::<OpticsFile>(&text).map_err(|e| Error::ConfigText(format!("{}: {}", p.display(), e.to_string().trim())))?
-        }
-        None => OpticsFile::default(),
-    };
-    let mut optics = file.optics;
-    let mut camera = file.camera.unwrap_or_else(|| CameraConfig::new(a.camera));
-    if a.config.is_none() || a.camera != CameraKind::PhaseCoded {
-        camera.kind = a.camera;
+/// The library's [`PsfSpec`] of the arguments.
+pub fn spec(a: &PsfArgs) -> PsfSpec {
+    PsfSpec {
+        camera: a.camera,
+        psi: a.psi.as_ref().map(|p| p.0.clone()),
+        window: a.window.map(usize::from),
+        config: a.config.clone(),
+        airy_radius_px: a.airy_radius_px,
+        spectrum: a.spectrum,
+        dispersion: a.dispersion,
+        defocus_sign: a.defocus_sign,
     }
-    if let Some(v) = a.airy_radius_px {
-        optics.airy_radius_px = Some(v);
-    }
-    if let Some(v) = a.spectrum {
-        optics.spectrum = v;
-    }
-    if let Some(v) = a.dispersion {
-        optics.dispersion = v;
-    }
-    if let Some(v) = a.defocus_sign {
-        optics.defocus_sign = v;
-    }
-    let mut errs = optics.validate("optics");
-    errs.extend(camera.validate("camera"));
-    if !errs.is_empty() {
-        return Err(crate::Error::Config(errs));
-    }
-    // clap checks these on the command line; the Python psf() fills PsfArgs directly.
-    if let Some(p) = &a.psi {
-        check_psi(&p.0).map_err(Error::Usage)?;
-    }
-    if a.window.is_some_and(|n| !(1..=64).contains(&n)) {
-        return Err(Error::Usage(format!("window {} must be 1 to 64", a.window.unwrap_or(0))));
-    }
-    let req = match (&a.psi, a.window) {
-        (Some(p), None) => PsfRequest::Psi(p.0.clone()),
-        (None, Some(n)) => PsfRequest::Window(n as usize),
-        (None, None) => PsfRequest::Psi(parse_psi_list("0:8:9").expect("default psi list")),
-        (Some(_), Some(_)) => return Err(Error::Usage("--psi and --window exclude each other".into())),
-    };
-    Ok((optics, camera, req))
 }
 
 /// Runs `pipeline psf`.
@@ -380,7 +199,7 @@ pub fn resolve(a: &PsfArgs) -> crate::Result<(OpticsConfig, CameraConfig, PsfReq
 /// # Errors
 /// Bad optics or camera values (all named), an unwritable output.
 pub fn command(a: PsfArgs) -> anyhow::Result<()> {
-    let (optics, camera, req) = resolve(&a)?;
+    let (optics, camera, req) = resolve(&spec(&a))?;
     let window = matches!(req, PsfRequest::Window(_));
     let t0 = std::time::Instant::now();
     let rows = compute(&optics, &camera, &req)?;

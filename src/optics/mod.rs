@@ -10,6 +10,7 @@ pub mod config;
 pub mod fft;
 pub mod lowrank;
 pub mod psf;
+pub mod request;
 pub mod transfer;
 
 pub use camera::{CacheStats, Camera, SubframeKernel};
