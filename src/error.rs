@@ -12,6 +12,10 @@ pub enum Error {
     Config(Vec<crate::checks::ConfigError>),
     #[error("{0}")]
     Invalid(String),
+    /// A file that is not what it must be (a model, checkpoint, optimizer state, shard or image
+    /// that does not parse or does not fit), named, with why.
+    #[error("{}: {why}", path.display())]
+    File { path: PathBuf, why: String },
     /// A stage of a pipeline failed; the cause is kept (and printed after it).
     #[error("stage {stage}")]
     Stage { stage: String, source: Box<Error> },

@@ -301,7 +301,7 @@ impl Picture {
 fn read_picture(f: &Path, ext: &str) -> Result<Picture> {
     if ext == "png" {
         let bytes = std::fs::read(f).map_err(|e| Error::Io { path: f.to_path_buf(), cause: e })?;
-        return png_io::read_samples(&bytes).map(Picture::Png).map_err(|e| Error::Invalid(format!("{}: {e}", f.display())));
+        return png_io::read_samples(&bytes).map(Picture::Png).map_err(|e| Error::File { path: f.to_path_buf(), why: format!("{e}") });
     }
     #[cfg(feature = "ffmpeg")]
     {
@@ -309,7 +309,7 @@ fn read_picture(f: &Path, ext: &str) -> Result<Picture> {
         Ok(Picture::Decoded { frame, float: r.float, alpha: r.alpha, grey: r.grey })
     }
     #[cfg(not(feature = "ffmpeg"))]
-    Err(Error::Invalid(format!("{}: only PNG is read without the ffmpeg feature", f.display())))
+    Err(Error::File { path: f.to_path_buf(), why: "only PNG is read without the ffmpeg feature".into() })
 }
 
 /// What deblurring is written into, chosen by the output's format: a PNG from a PNG keeps its
@@ -379,7 +379,7 @@ fn write_canvas(dst: &Path, ext: &str, w: usize, h: usize, canvas: &Canvas) -> R
             let codec = if ext.starts_with("tif") { Codec::Tiff } else { Codec::Jpeg };
             let tmp = temp_for(dst);
             let res = crate::io::video::write_image(&tmp, w, h, rgb, codec)
-                .map_err(|e| Error::Invalid(format!("{}: {e}", dst.display())))
+                .map_err(|e| Error::File { path: dst.to_path_buf(), why: format!("{e}") })
                 .and_then(|()| std::fs::rename(&tmp, dst).map_err(|e| Error::Io { path: dst.to_path_buf(), cause: e }));
             if res.is_err() {
                 let _ = std::fs::remove_file(&tmp);
@@ -387,7 +387,7 @@ fn write_canvas(dst: &Path, ext: &str, w: usize, h: usize, canvas: &Canvas) -> R
             res
         }
         #[cfg(not(feature = "ffmpeg"))]
-        (Canvas::Rgb8(_), _) => Err(Error::Invalid(format!("{}: JPEG and TIFF need the ffmpeg feature", dst.display()))),
+        (Canvas::Rgb8(_), _) => Err(Error::File { path: dst.to_path_buf(), why: "JPEG and TIFF need the ffmpeg feature".into() }),
     }
 }
 

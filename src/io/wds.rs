@@ -51,7 +51,7 @@ impl RawPair {
     /// See above.
     pub fn decode(self, shard: &Path, want: Option<(usize, usize)>) -> Result<Pair> {
         let RawPair { key, source, lq, gt } = self;
-        let bad = |what: String| Error::Invalid(format!("{}: sample {key}: {what}", shard.display()));
+        let bad = |what: String| Error::File { path: shard.to_path_buf(), why: format!("sample {key}: {what}") };
         let (w, h, lq) = png_io::read_rgb8(&lq).map_err(|e| bad(format!("lq.png is not a readable PNG ({e})")))?;
         let (gw, gh, gt) = png_io::read_rgb8(&gt).map_err(|e| bad(format!("gt.png is not a readable PNG ({e})")))?;
         let (w, h) = same_size((w, h), (gw, gh), want).map_err(bad)?;
@@ -63,7 +63,7 @@ impl RawPair {
     /// # Errors
     /// A header that is not a PNG's, or two sizes (naming `shard` and the key).
     pub fn size(&self, shard: &Path, want: Option<(usize, usize)>) -> Result<(usize, usize)> {
-        let bad = |what: String| Error::Invalid(format!("{}: sample {}: {what}", shard.display(), self.key));
+        let bad = |what: String| Error::File { path: shard.to_path_buf(), why: format!("sample {}: {what}", self.key) };
         // The signature (8 bytes), then IHDR: length, type, width and height (big-endian).
         let dims = |b: &[u8]| -> Option<(usize, usize)> {
             (b.len() >= 24 && b[..8] == *b"\x89PNG\r\n\x1a\n" && &b[12..16] == b"IHDR").then(|| {
@@ -104,11 +104,11 @@ pub fn read_shard(path: &Path, want: Option<(usize, usize)>) -> Result<Vec<Pair>
 /// See above.
 pub fn read_shard_raw(path: &Path) -> Result<Vec<RawPair>> {
     let f = std::fs::File::open(path).map_err(|e| Error::Io { path: path.to_path_buf(), cause: e })?;
-    let members = tar::read_all(std::io::BufReader::new(f)).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+    let members = tar::read_all(std::io::BufReader::new(f)).map_err(|e| Error::File { path: path.to_path_buf(), why: format!("{e}") })?;
     let mut out: Vec<RawPair> = Vec::new();
     type Cur = (String, Option<Vec<u8>>, Option<Vec<u8>>, Option<u64>);
     let mut cur: Option<Cur> = None;
-    let bad = |key: &str, what: String| Error::Invalid(format!("{}: sample {key}: {what}", path.display()));
+    let bad = |key: &str, what: String| Error::File { path: path.to_path_buf(), why: format!("sample {key}: {what}") };
     let finish = |c: Cur, out: &mut Vec<RawPair>| -> Result<()> {
         let (key, lq, gt, idx) = c;
         let lq = lq.ok_or_else(|| bad(&key, "has no lq.png".into()))?;

@@ -31,7 +31,7 @@ impl Latest {
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
             Err(e) => return Err(Error::Io { path: lp, cause: e }),
         };
-        let latest: Latest = serde_json::from_slice(&bytes).map_err(|e| Error::Invalid(format!("{}: {e}", lp.display())))?;
+        let latest: Latest = serde_json::from_slice(&bytes).map_err(|e| Error::File { path: lp.to_path_buf(), why: format!("{e}") })?;
         let model = crate::io::paths::inside(dir, &latest.model, &lp, "model")?;
         let optimizer = crate::io::paths::inside(dir, &latest.optimizer, &lp, "optimizer")?;
         Ok(Some((latest, model, optimizer)))
@@ -91,7 +91,7 @@ pub fn save_model(path: &Path, model: &Net, arch: &Arch, seed: u64, step: usize)
             serde_json::to_string(&c.0).expect("json")
         })
         .overwrite(true);
-    model.save_into(&mut store).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+    model.save_into(&mut store).map_err(|e| Error::File { path: path.to_path_buf(), why: format!("{e}") })?;
     // burn writes the file owner-only (0600); a checkpoint is meant to be shared like any output.
     {
         use std::os::unix::fs::PermissionsExt;
@@ -144,18 +144,17 @@ pub fn load_model_bytes(bytes: &[u8], name: &str, device: &Device) -> Result<(Ne
     // A model with PyTorch names (exported, or fine-tuned in PyTorch) is renamed first.
     let bytes = crate::model::torch::from_torch(bytes, name)?.unwrap_or_else(|| bytes.to_vec());
     let path = Path::new(name);
-    let arch = read_arch(&bytes).map_err(|e| Error::Invalid(format!("{}: {e}", path.display())))?;
+    let arch = read_arch(&bytes).map_err(|e| Error::File { path: path.to_path_buf(), why: format!("{e}") })?;
     let mut net = Net::new(arch, device);
     let mut store = SafetensorsStore::from_bytes(Some(bytes));
-    let r = net.load_from(&mut store).map_err(|e| Error::Invalid(format!("{}: not loadable as {} ({e})", path.display(), arch.name())))?;
+    let r = net
+        .load_from(&mut store)
+        .map_err(|e| Error::File { path: path.to_path_buf(), why: format!("not loadable as {} ({e})", arch.name()) })?;
     if !r.errors.is_empty() || !r.missing.is_empty() {
-        return Err(Error::Invalid(format!(
-            "{}: weights do not fit {} ({} missing, {} errors)",
-            path.display(),
-            arch.name(),
-            r.missing.len(),
-            r.errors.len()
-        )));
+        return Err(Error::File {
+            path: path.to_path_buf(),
+            why: format!("weights do not fit {} ({} missing, {} errors)", arch.name(), r.missing.len(), r.errors.len()),
+        });
     }
     // A model with NaN or infinite weights would write black frames: refuse it by name.
     struct Finite(usize);
@@ -167,11 +166,10 @@ pub fn load_model_bytes(bytes: &[u8], name: &str, device: &Device) -> Result<(Ne
     let mut bad = Finite(0);
     net.visit(&mut bad);
     if bad.0 > 0 {
-        return Err(Error::Invalid(format!(
-            "{}: {} weights are not finite (NaN or infinite); the model cannot be used",
-            path.display(),
-            bad.0
-        )));
+        return Err(Error::File {
+            path: path.to_path_buf(),
+            why: format!("{} weights are not finite (NaN or infinite); the model cannot be used", bad.0),
+        });
     }
     Ok((net, arch))
 }

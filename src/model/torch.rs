@@ -46,7 +46,7 @@ pub(crate) struct Entry {
 }
 
 pub(crate) fn read_safetensors(bytes: &[u8], name: &str) -> Result<(Vec<Entry>, serde_json::Value)> {
-    let bad = |m: &str| Error::Invalid(format!("{name}: {m}"));
+    let bad = |m: &str| Error::File { path: name.into(), why: format!("{m}") };
     let n = u64::from_le_bytes(bytes.get(..8).ok_or_else(|| bad("truncated"))?.try_into().expect("8 bytes")) as usize;
     let header: serde_json::Map<String, serde_json::Value> =
         serde_json::from_slice(bytes.get(8..8 + n).ok_or_else(|| bad("truncated header"))?)
@@ -97,7 +97,7 @@ pub fn to_torch(bytes: &[u8], name: &str) -> Result<(Vec<(String, Vec<usize>, St
     let (entries, meta) = read_safetensors(bytes, name)?;
     let mut out = Vec::new();
     for e in entries {
-        let t = torch_name(&e.name).ok_or_else(|| Error::Invalid(format!("{name}: {} has no PyTorch name", e.name)))?;
+        let t = torch_name(&e.name).ok_or_else(|| Error::File { path: name.into(), why: format!("{} has no PyTorch name", e.name) })?;
         if t.ends_with(".running_var") {
             let nbt = t.trim_end_matches("running_var").to_string() + "num_batches_tracked";
             out.push(Entry { name: nbt, dtype: "I64".into(), shape: vec![], data: 0i64.to_le_bytes().to_vec() });
@@ -146,7 +146,12 @@ pub fn from_torch(bytes: &[u8], name: &str) -> Result<Option<Vec<u8>>> {
         None => match (shape_of("inc.a.0.weight"), shape_of("blocks.0.0.weight")) {
             (Some(s), _) => crate::model::Arch::Unet { base: s[0] },
             (None, Some(s)) => crate::model::Arch::Shallow { width: s[0] },
-            _ => return Err(Error::Invalid(format!("{name}: neither a U-Net (inc.a.0.weight) nor a shallow model (blocks.0.0.weight)"))),
+            _ => {
+                return Err(Error::File {
+                    path: name.into(),
+                    why: "neither a U-Net (inc.a.0.weight) nor a shallow model (blocks.0.0.weight)".into(),
+                })
+            }
         },
     };
     let names = burn_names(arch)?;
@@ -158,9 +163,9 @@ pub fn from_torch(bytes: &[u8], name: &str) -> Result<Option<Vec<u8>>> {
         let b = names
             .get(&e.name)
             .cloned()
-            .ok_or_else(|| Error::Invalid(format!("{name}: {} is not a parameter of {}", e.name, arch.name())))?;
+            .ok_or_else(|| Error::File { path: name.into(), why: format!("{} is not a parameter of {}", e.name, arch.name()) })?;
         if e.dtype != "F32" {
-            return Err(Error::Invalid(format!("{name}: {} is {}, expected F32", e.name, e.dtype)));
+            return Err(Error::File { path: name.into(), why: format!("{} is {}, expected F32", e.name, e.dtype) });
         }
         out.push(Entry { name: b, ..e });
     }

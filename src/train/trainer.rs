@@ -105,10 +105,10 @@ impl Trainer {
                 )));
             }
             let bytes = std::fs::read(&mpath).map_err(|e| Error::Io { path: mpath.clone(), cause: e })?;
-            let ids: Vec<u64> = read_meta(&bytes)
-                .ok()
-                .and_then(|m| m["param_ids"].as_str().and_then(|s| serde_json::from_str(s).ok()))
-                .ok_or_else(|| Error::Invalid(format!("{}: no param_ids in the metadata; cannot resume the optimizer", mpath.display())))?;
+            let ids: Vec<u64> =
+                read_meta(&bytes).ok().and_then(|m| m["param_ids"].as_str().and_then(|s| serde_json::from_str(s).ok())).ok_or_else(
+                    || Error::File { path: mpath.to_path_buf(), why: "no param_ids in the metadata; cannot resume the optimizer".into() },
+                )?;
             model = net.map(&mut IdSetter { ids, next: 0 });
             optim_bytes = Some((op.clone(), std::fs::read(&op).map_err(|e| Error::Io { path: op, cause: e })?));
             start = latest.step;
@@ -132,7 +132,7 @@ impl Trainer {
                     } else {
                         "a checkpoint of optim.engine = \"burn\" resumes with that engine"
                     };
-                    Error::Invalid(format!("{}: {e} ({hint})", path.display()))
+                    Error::File { path: path.to_path_buf(), why: format!("{e} ({hint})") }
                 })?,
                 None => Adam::default(),
             };
@@ -140,8 +140,9 @@ impl Trainer {
         } else {
             let mut optim = AdamConfig::new().with_epsilon(cfg.optim.adam_epsilon as f32).init();
             if let Some((path, b)) = optim_bytes {
-                optim = optim.from_bytes(burn::tensor::Bytes::from_bytes_vec(b)).map_err(|e| {
-                    Error::Invalid(format!("{}: {e:?} (a checkpoint of optim.engine = \"fast\" resumes with that engine)", path.display()))
+                optim = optim.from_bytes(burn::tensor::Bytes::from_bytes_vec(b)).map_err(|e| Error::File {
+                    path: path.to_path_buf(),
+                    why: format!("{e:?} (a checkpoint of optim.engine = \"fast\" resumes with that engine)"),
                 })?;
             }
             Engine::Burn { device, model, optim, huber: HuberLossConfig::new(cfg.optim.huber_delta as f32).init() }
