@@ -301,7 +301,7 @@ impl Picture {
 fn read_picture(f: &Path, ext: &str) -> Result<Picture> {
     if ext == "png" {
         let bytes = std::fs::read(f).map_err(|e| Error::Io { path: f.to_path_buf(), cause: e })?;
-        return png_io::read_samples(&bytes).map(Picture::Png).map_err(|e| Error::File { path: f.to_path_buf(), why: format!("{e}") });
+        return png_io::read_samples(&bytes).map(Picture::Png).map_err(|e| Error::File { path: f.to_path_buf(), why: e.to_string() });
     }
     #[cfg(feature = "ffmpeg")]
     {
@@ -379,7 +379,7 @@ fn write_canvas(dst: &Path, ext: &str, w: usize, h: usize, canvas: &Canvas) -> R
             let codec = if ext.starts_with("tif") { Codec::Tiff } else { Codec::Jpeg };
             let tmp = temp_for(dst);
             let res = crate::io::video::write_image(&tmp, w, h, rgb, codec)
-                .map_err(|e| Error::File { path: dst.to_path_buf(), why: format!("{e}") })
+                .map_err(|e| Error::File { path: dst.to_path_buf(), why: e.to_string() })
                 .and_then(|()| std::fs::rename(&tmp, dst).map_err(|e| Error::Io { path: dst.to_path_buf(), cause: e }));
             if res.is_err() {
                 let _ = std::fs::remove_file(&tmp);

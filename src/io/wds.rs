@@ -104,7 +104,7 @@ pub fn read_shard(path: &Path, want: Option<(usize, usize)>) -> Result<Vec<Pair>
 /// See above.
 pub fn read_shard_raw(path: &Path) -> Result<Vec<RawPair>> {
     let f = std::fs::File::open(path).map_err(|e| Error::Io { path: path.to_path_buf(), cause: e })?;
-    let members = tar::read_all(std::io::BufReader::new(f)).map_err(|e| Error::File { path: path.to_path_buf(), why: format!("{e}") })?;
+    let members = tar::read_all(std::io::BufReader::new(f)).map_err(|e| Error::File { path: path.to_path_buf(), why: e.to_string() })?;
     let mut out: Vec<RawPair> = Vec::new();
     type Cur = (String, Option<Vec<u8>>, Option<Vec<u8>>, Option<u64>);
     let mut cur: Option<Cur> = None;

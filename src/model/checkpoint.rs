@@ -31,7 +31,7 @@ impl Latest {
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
             Err(e) => return Err(Error::Io { path: lp, cause: e }),
         };
-        let latest: Latest = serde_json::from_slice(&bytes).map_err(|e| Error::File { path: lp.to_path_buf(), why: format!("{e}") })?;
+        let latest: Latest = serde_json::from_slice(&bytes).map_err(|e| Error::File { path: lp.to_path_buf(), why: e.to_string() })?;
         let model = crate::io::paths::inside(dir, &latest.model, &lp, "model")?;
         let optimizer = crate::io::paths::inside(dir, &latest.optimizer, &lp, "optimizer")?;
         Ok(Some((latest, model, optimizer)))
@@ -91,7 +91,7 @@ pub fn save_model(path: &Path, model: &Net, arch: &Arch, seed: u64, step: usize)
             serde_json::to_string(&c.0).expect("json")
         })
         .overwrite(true);
-    model.save_into(&mut store).map_err(|e| Error::File { path: path.to_path_buf(), why: format!("{e}") })?;
+    model.save_into(&mut store).map_err(|e| Error::File { path: path.to_path_buf(), why: e.to_string() })?;
     // burn writes the file owner-only (0600); a checkpoint is meant to be shared like any output.
     {
         use std::os::unix::fs::PermissionsExt;
@@ -144,7 +144,7 @@ pub fn load_model_bytes(bytes: &[u8], name: &str, device: &Device) -> Result<(Ne
     // A model with PyTorch names (exported, or fine-tuned in PyTorch) is renamed first.
     let bytes = crate::model::torch::from_torch(bytes, name)?.unwrap_or_else(|| bytes.to_vec());
     let path = Path::new(name);
-    let arch = read_arch(&bytes).map_err(|e| Error::File { path: path.to_path_buf(), why: format!("{e}") })?;
+    let arch = read_arch(&bytes).map_err(|e| Error::File { path: path.to_path_buf(), why: e.to_string() })?;
     let mut net = Net::new(arch, device);
     let mut store = SafetensorsStore::from_bytes(Some(bytes));
     let r = net

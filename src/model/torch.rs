@@ -46,7 +46,7 @@ pub(crate) struct Entry {
 }
 
 pub(crate) fn read_safetensors(bytes: &[u8], name: &str) -> Result<(Vec<Entry>, serde_json::Value)> {
-    let bad = |m: &str| Error::File { path: name.into(), why: format!("{m}") };
+    let bad = |m: &str| Error::File { path: name.into(), why: m.into() };
     let n = u64::from_le_bytes(bytes.get(..8).ok_or_else(|| bad("truncated"))?.try_into().expect("8 bytes")) as usize;
     let header: serde_json::Map<String, serde_json::Value> =
         serde_json::from_slice(bytes.get(8..8 + n).ok_or_else(|| bad("truncated header"))?)
