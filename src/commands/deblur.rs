@@ -217,6 +217,20 @@ pub fn video(
     ))
 }
 
+/// The encoded value in [0, 1] that the network sees for channel `c` (R, G, B) of pixel `i` of
+/// decoded frame data: 8-bit and 16-bit samples scaled, float (OpenEXR, linear light when
+/// `float_linear`) clamped and sRGB-encoded. Not for patch-mode regions.
+fn encoded_sample(data: &crate::frame::FrameData, float_linear: bool, i: usize, c: usize) -> f32 {
+    use crate::frame::FrameData;
+    match data {
+        FrameData::Planar8(p) => p[c][i] as f32 / 255.0,
+        FrameData::Planar16(p) => p[c][i] as f32 / 65535.0,
+        FrameData::Planar(p) if float_linear => png_io::srgb_encode(p[c][i]),
+        FrameData::Planar(p) => p[c][i].clamp(0.0, 1.0),
+        FrameData::Regions8(_) => unreachable!("only patch-mode decoding makes regions"),
+    }
+}
+
 /// Interleaved 8-bit encoded RGB of a decoded frame; float frames (OpenEXR) are linear light
 /// and are sRGB-encoded first, as the network sees encoded values.
 pub fn to_rgb8(f: &crate::frame::Frame, float_linear: bool) -> Vec<u8> {
@@ -237,16 +251,7 @@ pub fn to_rgb8(f: &crate::frame::Frame, float_linear: bool) -> Vec<u8> {
             }
             out
         }
-        FrameData::Planar16(p) => (0..n).flat_map(|i| [0, 1, 2].map(|c| (p[c][i] as f32 / 257.0).round() as u8)).collect(),
-        FrameData::Planar(p) => (0..n)
-            .flat_map(|i| {
-                [0, 1, 2].map(|c| {
-                    let v = p[c][i].clamp(0.0, 1.0);
-                    let e = if float_linear { png_io::srgb_encode(v) } else { v };
-                    (e * 255.0).round() as u8
-                })
-            })
-            .collect(),
+        data => (0..n * 3).map(|k| (encoded_sample(data, float_linear, k / 3, k % 3) * 255.0).round() as u8).collect(),
     }
 }
 
@@ -272,16 +277,9 @@ impl Picture {
 
     /// The encoded value in [0, 1] of channel `c` (R, G, B) of pixel `i`, as the network sees it.
     fn encoded(&self, i: usize, c: usize) -> f32 {
-        use crate::frame::FrameData;
         match self {
             Picture::Png(s) => s.get(i, if s.channels <= 2 { 0 } else { c }),
-            Picture::Decoded { frame, float, .. } => match &*frame.data {
-                FrameData::Planar8(p) => p[c][i] as f32 / 255.0,
-                FrameData::Planar16(p) => p[c][i] as f32 / 65535.0,
-                FrameData::Planar(p) if *float => png_io::srgb_encode(p[c][i]),
-                FrameData::Planar(p) => p[c][i].clamp(0.0, 1.0),
-                FrameData::Regions8(_) => unreachable!("only patch-mode decoding makes regions"),
-            },
+            Picture::Decoded { frame, float, .. } => encoded_sample(&frame.data, *float, i, c),
         }
     }
 
