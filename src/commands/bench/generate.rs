@@ -51,13 +51,6 @@ pub struct PeerRow {
 fn peers(clip: &std::path::Path, (w, h): (usize, usize), dir: &std::path::Path, repeats: usize, ours: f64) -> Vec<PeerRow> {
     let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/peers_generate.py");
     let python = python();
-    let has = |m: &str| {
-        std::process::Command::new(&python)
-            .args(["-c", &format!("import numpy, {m}")])
-            .stderr(std::process::Stdio::null())
-            .status()
-            .is_ok_and(|s| s.success())
-    };
     let kernels = dir.join("kernels.npy");
     let made = std::env::current_exe().ok().is_some_and(|exe| {
         std::process::Command::new(exe)
@@ -70,7 +63,7 @@ fn peers(clip: &std::path::Path, (w, h): (usize, usize), dir: &std::path::Path, 
     });
     let mut rows = Vec::new();
     for peer in ["scipy", "torch"] {
-        if !made || !script.exists() || !has(peer) {
+        if !made || !script.exists() || !python_imports(&format!("numpy, {peer}")) {
             eprintln!("bench: {peer} peer: not installed in {python} (PIPELINE_PYTHON), skipped");
             continue;
         }

@@ -46,6 +46,15 @@ pub(super) fn python() -> String {
     std::env::var("PIPELINE_PYTHON").unwrap_or_else(|_| "python3".into())
 }
 
+/// Whether [`python`] imports `modules` (`"numpy, scipy"`): a baseline that needs them runs.
+pub(super) fn python_imports(modules: &str) -> bool {
+    std::process::Command::new(python())
+        .args(["-c", &format!("import {modules}")])
+        .stderr(std::process::Stdio::null())
+        .status()
+        .is_ok_and(|s| s.success())
+}
+
 /// Peak resident memory (kB) since the last [`reset_peak_rss`], from /proc (Linux).
 pub fn peak_rss_kb() -> Option<u64> {
     let s = std::fs::read_to_string("/proc/self/status").ok()?;

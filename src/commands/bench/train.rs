@@ -149,10 +149,5 @@ pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize, with_bu
 /// `benches/torch_models.py` when [`python`] can import torch (the PyTorch baseline), else `None`.
 pub(super) fn torch_script() -> Option<std::path::PathBuf> {
     let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/torch_models.py");
-    let torch = std::process::Command::new(python())
-        .args(["-c", "import torch"])
-        .stderr(std::process::Stdio::null())
-        .status()
-        .is_ok_and(|s| s.success());
-    (torch && script.exists()).then_some(script)
+    (python_imports("torch") && script.exists()).then_some(script)
 }
