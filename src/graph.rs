@@ -39,6 +39,10 @@ pub struct StageReport {
     /// Seconds spent working (not waiting on its neighbours).
     pub busy_s: f64,
     pub items_in: u64,
+    /// What the stage decided at build time that a reader of the run should know (the blur's
+    /// low-rank ranks and error bound), when it has any.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub details: Option<serde_json::Value>,
 }
 
 #[derive(Debug, Clone, Serialize)]
@@ -359,7 +363,7 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
                         }
                     }
                 }
-                StageReport { name, kind: "sink".into(), busy_s: t.busy(), items_in: t.items }
+                StageReport { name, kind: "sink".into(), busy_s: t.busy(), items_in: t.items, details: None }
             })
         };
         while !sink_handle.is_finished() {
@@ -483,7 +487,7 @@ fn start(
             if let Err(e) = source.run(&mut out) {
                 record(&first, &stop, &name, e);
             }
-            StageReport { name, kind: "source".into(), busy_s: t.busy() - out.waited.as_secs_f64(), items_in: 0 }
+            StageReport { name, kind: "source".into(), busy_s: t.busy() - out.waited.as_secs_f64(), items_in: 0, details: None }
         }));
     }
     for (name, kind, mut tr) in transforms {
@@ -518,7 +522,7 @@ fn start(
                     record(&first, &stop, &name, e);
                 }
             }
-            StageReport { name, kind, busy_s: t.busy() - out.waited.as_secs_f64(), items_in: t.items }
+            StageReport { name, kind, busy_s: t.busy() - out.waited.as_secs_f64(), items_in: t.items, details: tr.details() }
         }));
     }
     (rx, handles)

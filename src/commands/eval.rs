@@ -66,7 +66,8 @@ pub struct EvalConfig {
     pub curve: Curve,
     /// FFT worker threads for the blur (0: all cores).
     pub threads: usize,
-    pub rank_tolerance: f64,
+    /// Low-rank blur error budget in 8-bit levels RMS, as the `coded_blur` stage's (0: exact).
+    pub max_error: f64,
 }
 
 impl Default for EvalConfig {
@@ -83,7 +84,7 @@ impl Default for EvalConfig {
             overlap: 64,
             curve: Curve::Srgb,
             threads: 0,
-            rank_tolerance: 1e-3,
+            max_error: crate::stage::coded_blur::DEFAULT_MAX_ERROR,
         }
     }
 }
@@ -116,7 +117,7 @@ impl EvalFile {
         if e.crop != 0 {
             c.range_usize("crop", e.crop, 11, 16384);
         }
-        c.range("rank_tolerance", e.rank_tolerance, 0.0, 0.1);
+        c.range("max_error", e.max_error, 0.0, 255.0);
         let mut errs = c.errors;
         errs.extend(self.camera.validate("camera"));
         errs.extend(self.optics.validate("optics"));
@@ -320,7 +321,7 @@ pub fn run(
     let half = (maxn / 2) as u64;
     let spacing = if e.spacing == 0 { maxn } else { e.spacing } as u64;
     let mut blurrers =
-        e.windows.iter().map(|&n| Blurrer::new(camera.clone(), n, e.threads, e.rank_tolerance)).collect::<Result<Vec<_>>>()?;
+        e.windows.iter().map(|&n| Blurrer::new(camera.clone(), n, e.threads, e.max_error)).collect::<Result<Vec<_>>>()?;
     let enc = Encoder::new(e.curve);
     let tiling = Tiling { tile: e.tile, overlap: e.overlap };
     let total = (paths.len() * e.windows_per_video * e.windows.len() * e.sigmas.len()) as u64;

@@ -140,7 +140,7 @@ fn compose(path: &Path, title: &str, panels: &[Panel], cols: usize, scale: usize
 fn capture(frames: &[[Vec<f32>; 3]], w: usize, h: usize, cam: &Arc<Camera>, sigma: f64, key: u64) -> Result<(Vec<u8>, f64)> {
     let lin: Vec<Arc<Frame>> =
         frames.iter().map(|p| Arc::new(Frame { curve: Some(Curve::Identity), ..Frame::new(w, h, FrameData::Planar(p.clone())) })).collect();
-    let mut b = Blurrer::new(cam.clone(), frames.len(), 0, 1e-3)?;
+    let mut b = Blurrer::new(cam.clone(), frames.len(), 0, crate::stage::coded_blur::DEFAULT_MAX_ERROR)?;
     let rgb = crate::imaging::capture(&mut b, &lin, (0, 0, w, h), &Encoder::new(Curve::Srgb), sigma, key);
     Ok((rgb, crate::imaging::sensor_sigma(sigma, cam.light_throughput())))
 }

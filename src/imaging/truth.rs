@@ -163,7 +163,7 @@ mod tests {
     fn the_window_kernel_is_the_blur_eval_applies_to_a_moving_frame() {
         use crate::optics::{Camera, CameraConfig, OpticsConfig};
         let camera = Arc::new(Camera::new(&OpticsConfig::default(), &CameraConfig::default()));
-        let mut b = Blurrer::new(camera, 5, 1, 1e-6).unwrap();
+        let mut b = Blurrer::new(camera, 5, 1, 0.0).unwrap();
         let (w, h) = (96, 80);
         let tex = crate::stage::stills::procedural_texture(w, h, 7);
         let lin: [Vec<f32>; 3] = std::array::from_fn(|c| tex[c].iter().map(|v| v * v).collect());

@@ -1,9 +1,19 @@
 //! Low-rank factorisation of a window's kernels: `K_k ~ sum_r a_kr B_r` with orthonormal
 //! `B_r`, so that `sum_k K_k * S_k = sum_r B_r * (sum_k a_kr S_k)` needs R forward transforms
-//! instead of N. With `tol = 0` the factorisation keeps every non-zero direction and is exact up
-//! to rounding; a tolerance drops the directions whose energy is below `tol^2` of the total.
+//! instead of N.
 //!
-//! Computed from the eigen-decomposition of the N x N Gram matrix (cyclic Jacobi).
+//! Computed from the eigen-decomposition of the N x N Gram matrix (cyclic Jacobi). The rank is
+//! chosen from an error budget in 8-bit levels ([`factorise_within`]): the smallest R whose
+//! dropped part `E_k = K_k - sum_r a_kr B_r` provably changes the blurred window by at most that
+//! much RMS for any sub-frames with values in [0, 1] (linear light, 1 level = 1/255):
+//!
+//! `RMS(sum_k E_k * S_k) <= min( sum_k max_f |E^_k(f)|, sqrt(N max_f sum_k |E^_k(f)|^2) )`
+//!
+//! (Parseval with the triangle inequality over k, or with Cauchy-Schwarz over k per frequency;
+//! spectra sampled on a grid twice the kernel's side). A budget of 0 keeps every direction:
+//! exact up to rounding.
+use num_complex::Complex64;
+use rustfft::FftPlanner;
 
 /// Eigenvalues (descending) and eigenvectors (columns, `v[i][r]`) of a symmetric matrix.
 pub fn symmetric_eigen(a: &[Vec<f64>]) -> (Vec<f64>, Vec<Vec<f64>>) {
@@ -58,25 +68,31 @@ pub struct LowRank {
     pub coeffs: Vec<Vec<f64>>,
     /// Relative Frobenius error of the kept rank.
     pub rel_error: f64,
+    /// Upper bound on the RMS error of the blurred window, in 8-bit levels of linear light, for
+    /// sub-frames in [0, 1] (see the module docs). 0 when every direction is kept.
+    pub bound_levels: f64,
 }
 
-/// Factorises `kernels` keeping the smallest rank whose dropped energy is at most
-/// `tol^2` of the total.
-pub fn factorise(kernels: &[Vec<f32>], tol: f64) -> LowRank {
+/// Eigen-decomposition of the kernels' Gram matrix.
+fn gram_eigen(kernels: &[Vec<f32>]) -> (Vec<f64>, Vec<Vec<f64>>) {
     let n = kernels.len();
     let gram: Vec<Vec<f64>> =
         (0..n).map(|i| (0..n).map(|j| kernels[i].iter().zip(&kernels[j]).map(|(a, b)| *a as f64 * *b as f64).sum()).collect()).collect();
-    let (vals, vecs) = symmetric_eigen(&gram);
-    let total: f64 = vals.iter().map(|v| v.max(0.0)).sum::<f64>().max(1e-300);
+    symmetric_eigen(&gram)
+}
+
+/// Directions worth keeping at all: eigenvalues above rounding.
+fn useful(vals: &[f64]) -> usize {
     let floor = 1e-14 * vals[0].max(1e-300);
-    let mut r = 0;
-    let mut dropped: f64 = vals.iter().map(|v| v.max(0.0)).sum();
-    while r < n && vals[r] > floor && dropped > tol * tol * total {
-        dropped -= vals[r].max(0.0);
-        r += 1;
-    }
-    let r = r.max(1);
+    vals.iter().take_while(|v| **v > floor).count().max(1)
+}
+
+/// The factorisation keeping the first `r` eigen-directions.
+fn keep(kernels: &[Vec<f32>], vals: &[f64], vecs: &[Vec<f64>], r: usize, bound_levels: f64) -> LowRank {
+    let n = kernels.len();
     let len = kernels[0].len();
+    let total: f64 = vals.iter().map(|v| v.max(0.0)).sum::<f64>().max(1e-300);
+    let dropped: f64 = vals[r..].iter().map(|v| v.max(0.0)).sum();
     let basis: Vec<Vec<f32>> = (0..r)
         .map(|q| {
             let s = vals[q].max(1e-300).sqrt();
@@ -84,7 +100,93 @@ pub fn factorise(kernels: &[Vec<f32>], tol: f64) -> LowRank {
         })
         .collect();
     let coeffs = (0..n).map(|k| (0..r).map(|q| vecs[k][q] * vals[q].max(0.0).sqrt()).collect()).collect();
-    LowRank { basis, coeffs, rel_error: (dropped.max(0.0) / total).sqrt() }
+    LowRank { basis, coeffs, rel_error: (dropped.max(0.0) / total).sqrt(), bound_levels }
+}
+
+/// Factorises `kernels` keeping the smallest rank whose dropped energy is at most
+/// `tol^2` of the total.
+pub fn factorise(kernels: &[Vec<f32>], tol: f64) -> LowRank {
+    let (vals, vecs) = gram_eigen(kernels);
+    let total: f64 = vals.iter().map(|v| v.max(0.0)).sum::<f64>().max(1e-300);
+    let most = useful(&vals);
+    let mut r = 0;
+    let mut dropped = total;
+    while r < most && dropped > tol * tol * total {
+        dropped -= vals[r].max(0.0);
+        r += 1;
+    }
+    let r = r.max(1);
+    let bound = error_bounds(kernels, &vecs)[r];
+    keep(kernels, &vals, &vecs, r, bound)
+}
+
+/// Factorises square kernels (`side x side`, row-major) keeping the smallest rank whose error
+/// bound is at most `max_error` 8-bit levels RMS (see the module docs); 0 keeps every useful
+/// direction.
+pub fn factorise_within(kernels: &[Vec<f32>], max_error: f64) -> LowRank {
+    let (vals, vecs) = gram_eigen(kernels);
+    let most = useful(&vals);
+    if max_error <= 0.0 {
+        return keep(kernels, &vals, &vecs, most, 0.0);
+    }
+    let bounds = error_bounds(kernels, &vecs);
+    let r = (1..=most).find(|&r| bounds[r] <= max_error).unwrap_or(most);
+    keep(kernels, &vals, &vecs, r, if r == most { 0.0 } else { bounds[r] })
+}
+
+/// `bounds[r]` for r = 0..=N: the RMS error bound in 8-bit levels of keeping r directions.
+fn error_bounds(kernels: &[Vec<f32>], vecs: &[Vec<f64>]) -> Vec<f64> {
+    let n = kernels.len();
+    let side = (kernels[0].len() as f64).sqrt().round() as usize;
+    assert_eq!(side * side, kernels[0].len(), "square kernels");
+    // Spectra of the eigen-directions' kernel combinations U_q = sum_i v_iq K_i (= sqrt(l_q) B_q).
+    // The dropped part of K_k past rank r is sum_{q >= r} v_kq U_q.
+    let m = 2 * side;
+    let mut planner = FftPlanner::<f64>::new();
+    let fft = planner.plan_fft_forward(m);
+    let spectrum = |img: &[f64]| -> Vec<Complex64> {
+        let mut a = vec![Complex64::new(0.0, 0.0); m * m];
+        for y in 0..side {
+            for x in 0..side {
+                a[y * m + x].re = img[y * side + x];
+            }
+        }
+        for row in a.chunks_mut(m) {
+            fft.process(row);
+        }
+        let mut col = vec![Complex64::new(0.0, 0.0); m];
+        for x in 0..m {
+            for y in 0..m {
+                col[y] = a[y * m + x];
+            }
+            fft.process(&mut col);
+            for y in 0..m {
+                a[y * m + x] = col[y];
+            }
+        }
+        a
+    };
+    let u: Vec<Vec<Complex64>> = (0..n)
+        .map(|q| {
+            let img: Vec<f64> = (0..side * side).map(|p| (0..n).map(|i| vecs[i][q] * kernels[i][p] as f64).sum()).collect();
+            spectrum(&img)
+        })
+        .collect();
+    let mut bounds = vec![0.0; n + 1];
+    // e[k][f] = sum_{q >= r} v_kq U_q(f), built from r = N down to 0.
+    let mut e = vec![vec![Complex64::new(0.0, 0.0); m * m]; n];
+    for r in (0..n).rev() {
+        for (k, ek) in e.iter_mut().enumerate() {
+            let v = vecs[k][r];
+            for (a, b) in ek.iter_mut().zip(&u[r]) {
+                *a += v * b;
+            }
+        }
+        let triangle: f64 = e.iter().map(|ek| ek.iter().map(|z| z.norm()).fold(0.0, f64::max)).sum();
+        let per_f = (0..m * m).map(|f| e.iter().map(|ek| ek[f].norm_sqr()).sum::<f64>()).fold(0.0, f64::max);
+        bounds[r] = 255.0 * triangle.min((n as f64 * per_f).sqrt());
+    }
+    bounds
 }
 
 #[cfg(test)]

@@ -370,6 +370,10 @@ pub trait Transform: Send {
     fn finish(&mut self, _out: &mut Emit) -> StageResult {
         Ok(())
     }
+    /// Settings the stage chose itself, for the run's report (`stages[].details`).
+    fn details(&self) -> Option<serde_json::Value> {
+        None
+    }
 }
 
 /// A source: produces every item of every input, checking `stop` between frames.

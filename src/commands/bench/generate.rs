@@ -104,6 +104,8 @@ pub struct FftFloor {
     pub padded: [usize; 2],
     pub tiles: usize,
     pub ranks: [usize; 3],
+    /// The ranks' error bound per channel, 8-bit levels RMS (`coded_blur.max_error`).
+    pub error_bound_levels: [f64; 3],
     pub transforms_per_window: usize,
     /// Median time of one tile's forward transform with its product (one thread).
     pub ms_per_transform: f64,
@@ -140,7 +142,7 @@ pub(super) fn fft_floor(w: usize, h: usize, window: usize, repeats: usize, ff_de
         &Default::default(),
         &crate::optics::CameraConfig::new(crate::optics::CameraKind::PhaseCoded),
     ));
-    let b = crate::imaging::blur::Blurrer::new(cam, window, 1, 1e-3)?;
+    let b = crate::imaging::blur::Blurrer::new(cam, window, 1, crate::stage::coded_blur::DEFAULT_MAX_ERROR)?;
     let m = b.margin;
     let (tw, th) = crate::imaging::blur::plan_tiles(w, h, m);
     let tiles = w.div_ceil(tw) * h.div_ceil(th);
@@ -157,6 +159,7 @@ pub(super) fn fft_floor(w: usize, h: usize, window: usize, repeats: usize, ff_de
         padded: [wp, hp],
         tiles,
         ranks,
+        error_bound_levels: b.error_bounds(),
         transforms_per_window: transforms,
         ms_per_transform: t1 * 1e3,
         plane_ms_per_transform: plane * 1e3,
@@ -267,12 +270,13 @@ pub fn generate(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> c
     }
     let floor = fft_floor(w, h, 9, repeats.max(5), ff_med)?;
     eprintln!(
-        "bench: FFT floor of a coded window: {} tiles in transforms of {}x{}, {} transforms each (ranks {:?} + 3 inverses) x {:.2} ms = {:.0} sub-frames/s on {} threads ({:.2}x ffmpeg decode-only); one {}x{} plane instead: {:.2} ms a transform ({:.2} ms per tile's worth of pixels)",
+        "bench: FFT floor of a coded window: {} tiles in transforms of {}x{}, {} transforms each (ranks {:?} within {:.2?} of an 8-bit level RMS, + 3 inverses) x {:.2} ms = {:.0} sub-frames/s on {} threads ({:.2}x ffmpeg decode-only); one {}x{} plane instead: {:.2} ms a transform ({:.2} ms per tile's worth of pixels)",
         floor.tiles,
         floor.padded[0],
         floor.padded[1],
         floor.transforms_per_window,
         floor.ranks,
+        floor.error_bound_levels,
         floor.ms_per_transform,
         floor.subframes_per_s,
         rayon::current_num_threads(),
