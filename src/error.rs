@@ -19,6 +19,9 @@ pub enum Error {
     /// A stage of a pipeline failed; the cause is kept (and printed after it).
     #[error("stage {stage}")]
     Stage { stage: String, source: Box<Error> },
+    /// What was being done (`init`, say) when its cause failed; the cause is kept.
+    #[error("{what}")]
+    Context { what: String, source: Box<Error> },
     /// A pipeline file that does not parse or has an unknown key.
     #[error("{0}")]
     ConfigText(String),

@@ -320,8 +320,7 @@ pub fn run(
     let maxn = *e.windows.iter().max().expect("validated non-empty");
     let half = (maxn / 2) as u64;
     let spacing = if e.spacing == 0 { maxn } else { e.spacing } as u64;
-    let mut blurrers =
-        e.windows.iter().map(|&n| Blurrer::new(camera.clone(), n, e.threads, e.max_error)).collect::<Result<Vec<_>>>()?;
+    let mut blurrers = e.windows.iter().map(|&n| Blurrer::new(camera.clone(), n, e.threads, e.max_error)).collect::<Result<Vec<_>>>()?;
     let enc = Encoder::new(e.curve);
     let tiling = Tiling { tile: e.tile, overlap: e.overlap };
     let total = (paths.len() * e.windows_per_video * e.windows.len() * e.sigmas.len()) as u64;
@@ -335,18 +334,16 @@ pub fn run(
         let last = first + 2 * half + spacing * (e.windows_per_video as u64 - 1);
         let frames = read_frames(path, first, last, e.curve)?;
         if (frames.len() as u64) < 2 * half + 1 {
-            return Err(Error::Invalid(format!(
-                "{}: {} frames after skipping {}, fewer than one window of {maxn}",
-                path.display(),
-                frames.len(),
-                e.skip
-            )));
+            return Err(Error::File {
+                path: path.to_path_buf(),
+                why: format!("{} frames after skipping {}, fewer than one window of {maxn}", frames.len(), e.skip),
+            });
         }
         let (w, h) = (frames[0].width, frames[0].height);
         reg = region(w, h, e.crop);
         let [rx, ry, rw, rh] = reg;
         if rw < 11 || rh < 11 {
-            return Err(Error::Invalid(format!("{}: {w}x{h} is too small to score (SSIM needs 11x11)", path.display())));
+            return Err(Error::File { path: path.to_path_buf(), why: format!("{w}x{h} is too small to score (SSIM needs 11x11)") });
         }
         let video = path.display().to_string();
         let log = crate::imaging::truth::MotionLog::read(path)?;

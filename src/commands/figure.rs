@@ -351,7 +351,7 @@ fn spoke(o: &FigureOptions, out: &Path) -> Result<Vec<Score>> {
     let model = |name: &str| -> Result<crate::model::fast::FastNet> {
         let p = o.models.join(name).join("model.safetensors");
         if !p.exists() {
-            return Err(Error::Invalid(format!("{}: no such model (run from the repository or pass --models DIR)", p.display())));
+            return Err(Error::Usage(format!("{}: no such model (run from the repository or pass --models DIR)", p.display())));
         }
         Ok(crate::model::fast::FastNet::from_net(&crate::train::load_model(&p, &device)?.0))
     };

@@ -117,7 +117,7 @@ pub fn write(rows: &[PsfRow], out: &Path, zoom: usize) -> Result<()> {
             let rgb: Vec<u8> = (0..w * h).flat_map(|i| [0, 1, 2].map(|c| (planes[c][i] * 255.0).round().clamp(0.0, 255.0) as u8)).collect();
             write_atomic(out, |wr| png_io::write_rgb8(wr, w, h, &rgb))
         }
-        _ => Err(Error::Invalid(format!("{}: unknown output type {ext:?} (expected .npy, .exr or .png)", out.display()))),
+        _ => Err(Error::Usage(format!("{}: unknown output type {ext:?} (expected .npy, .exr or .png)", out.display()))),
     }
 }
 

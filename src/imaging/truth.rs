@@ -36,11 +36,12 @@ impl MotionLog {
         let mut log = MotionLog::default();
         for (i, line) in text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty()) {
             let v: serde_json::Value =
-                serde_json::from_str(line).map_err(|e| Error::Invalid(format!("{} line {}: {e}", p.display(), i + 1)))?;
+                serde_json::from_str(line).map_err(|e| Error::File { path: p.clone(), why: format!("line {}: {e}", i + 1) })?;
             let frame =
-                v["window"].as_u64().ok_or_else(|| Error::Invalid(format!("{} line {}: no `window` index", p.display(), i + 1)))? as usize;
+                v["window"].as_u64().ok_or_else(|| Error::File { path: p.clone(), why: format!("line {}: no `window` index", i + 1) })?
+                    as usize;
             if frame >= 1 << 24 {
-                return Err(Error::Invalid(format!("{} line {}: frame {frame} is out of range", p.display(), i + 1)));
+                return Err(Error::File { path: p.clone(), why: format!("line {}: frame {frame} is out of range", i + 1) });
             }
             if log.frames.len() <= frame {
                 log.frames.resize(frame + 1, None);
@@ -155,7 +156,7 @@ mod tests {
         assert!(log.shifts(3, 5, 5).is_none(), "a window across two segments has no single motion");
         assert!(MotionLog::read(&dir.join("none.mkv")).unwrap().is_none());
         std::fs::write(log_path(&video), "{not json\n").unwrap();
-        assert!(MotionLog::read(&video).unwrap_err().to_string().contains("clip.motion.jsonl line 1"));
+        assert!(MotionLog::read(&video).unwrap_err().to_string().contains("clip.motion.jsonl: line 1"));
         std::fs::remove_dir_all(&dir).ok();
     }
 

@@ -23,7 +23,7 @@ pub fn expand_paths(paths: &[String], exts: &[&str]) -> Result<Vec<PathBuf>, cra
                 }
             }
             if out.len() == before {
-                return Err(crate::Error::Invalid(format!("{p}: the pattern matches no file")));
+                return Err(crate::Error::Usage(format!("{p}: the pattern matches no file")));
             }
         } else if path.is_dir() {
             let rd = std::fs::read_dir(&path).map_err(|e| crate::Error::Io { path: path.clone(), cause: e })?;

@@ -210,7 +210,7 @@ impl Manifest {
         match std::fs::read(&p) {
             Ok(b) => {
                 let m: Manifest = serde_json::from_slice(&b)
-                    .map_err(|e| crate::Error::Invalid(format!("{}: not a pipeline manifest ({e})", p.display())))?;
+                    .map_err(|e| crate::Error::File { path: p.clone(), why: format!("not a pipeline manifest ({e})") })?;
                 // Shard names are opened, sized and removed in `dir`: each must be a plain name
                 // there (a tampered manifest must not reach other files).
                 for (i, input) in m.inputs.iter().enumerate() {

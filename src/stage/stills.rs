@@ -309,13 +309,13 @@ pub fn load_sprites(paths: &[String], max_side: usize) -> crate::Result<Vec<Arc<
     let mut out = Vec::with_capacity(files.len());
     for f in files {
         let bytes = std::fs::read(&f).map_err(|e| crate::Error::Io { path: f.clone(), cause: e })?;
-        let (w, h, rgba) =
-            crate::io::png::read_rgba8(&bytes).map_err(|e| crate::Error::Invalid(format!("{}: not a readable PNG ({e})", f.display())))?;
+        let (w, h, rgba) = crate::io::png::read_rgba8(&bytes)
+            .map_err(|e| crate::Error::File { path: f.clone(), why: format!("not a readable PNG ({e})") })?;
         if !rgba.chunks_exact(4).any(|p| p[3] < 255) {
-            return Err(crate::Error::Invalid(format!(
-                "{}: no transparent pixel, so not a cut-out (motion.object_paths wants PNGs with alpha)",
-                f.display()
-            )));
+            return Err(crate::Error::File {
+                path: f.clone(),
+                why: "no transparent pixel, so not a cut-out (motion.object_paths wants PNGs with alpha)".into(),
+            });
         }
         out.push(Arc::new(Sprite::from_rgba8(w, h, &rgba, max_side)));
     }

@@ -159,7 +159,7 @@ impl Stream {
     fn take(&mut self) -> Result<(Origin, Pair)> {
         while self.buffer.len() < self.cap {
             if !self.refill()? {
-                return Err(Error::Invalid("the shards hold no training sample (all inputs went to validation?)".into()));
+                return Err(Error::Usage("data.shards: the shards hold no training sample (all inputs went to validation?)".into()));
             }
             let (o, p) = self.pending.pop_front().expect("refilled");
             if let Some(c) = &mut self.current {
@@ -206,13 +206,13 @@ impl Stream {
     /// shard being drained cannot be read.
     pub(super) fn restore(&mut self, state: StreamState, found: &std::collections::HashMap<Origin, Pair>) -> Result<Vec<Vec<Pair>>> {
         let get = |o: &Origin| {
-            found.get(o).cloned().ok_or_else(|| {
-                Error::Invalid(format!(
-                    "{}: sample {} is not where the checkpoint's data position says (were the shards rewritten?); resume \
-                     after deleting the stream-*.json files to replay the data order instead",
-                    self.shards[o.0 as usize].display(),
+            found.get(o).cloned().ok_or_else(|| Error::File {
+                path: self.shards[o.0 as usize].clone(),
+                why: format!(
+                    "sample {} is not where the checkpoint's data position says (were the shards rewritten?); resume \
+                         after deleting the stream-*.json files to replay the data order instead",
                     o.1
-                ))
+                ),
             })
         };
         self.buffer = state.buffer.iter().map(|o| Ok((*o, get(o)?))).collect::<Result<_>>()?;

@@ -68,7 +68,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
         Error::Io { path, cause } if cause.kind() == std::io::ErrorKind::NotFound => {
             Error::Usage(format!("data.shards: {}: no such folder", path.display()))
         }
-        Error::Invalid(m) => Error::Usage(format!("data.shards: {m}")),
+        Error::Usage(m) => Error::Usage(format!("data.shards: {m}")),
         e => e,
     })?;
     if shards.is_empty() {
@@ -110,7 +110,7 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
     let val: Vec<Pair> = val.finish().into_iter().map(|(i, raw)| raw.decode(&shards[i], size)).collect::<Result<_>>()?;
     t.val = val;
     if t.train_inputs.is_empty() {
-        return Err(Error::Invalid(format!(
+        return Err(Error::Usage(format!(
             "data: every input ({:?}) went to validation; lower data.val_fraction or add inputs",
             t.val_inputs
         )));

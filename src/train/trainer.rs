@@ -71,13 +71,12 @@ impl Trainer {
         let read_history = |p: &Path| -> Option<History> { std::fs::read(p).ok().and_then(|b| serde_json::from_slice(&b).ok()) };
         if let (Some(init), false) = (&cfg.init, opts.resume) {
             let path = Path::new(init);
-            let (net, arch) = load_model(path, &device).map_err(|e| Error::Invalid(format!("init: {e}")))?;
+            let (net, arch) = load_model(path, &device).map_err(|e| Error::Context { what: "init".into(), source: Box::new(e) })?;
             if arch != cfg.model {
-                return Err(Error::Invalid(format!(
-                    "init: {init} holds a {} model, the config's model is {}",
-                    arch.name(),
-                    cfg.model.name()
-                )));
+                return Err(Error::File {
+                    path: path.to_path_buf(),
+                    why: format!("(init) holds a {} model, the config's model is {}", arch.name(), cfg.model.name()),
+                });
             }
             model = net;
             // A fine-tuning run is a run of its own (steps 1 to optim.steps, a fresh schedule
