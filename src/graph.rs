@@ -88,6 +88,8 @@ pub struct Report {
     pub interrupted: bool,
     /// Why the run stopped before its end (a refused manifest, a full disk), or null.
     pub error: Option<String>,
+    /// The process's peak resident memory when the report was written, in MB (Linux), or null.
+    pub peak_rss_mb: Option<f64>,
     pub config: serde_json::Value,
 }
 
@@ -120,6 +122,7 @@ impl Report {
             sink: serde_json::Value::Null,
             interrupted: false,
             error: None,
+            peak_rss_mb: None,
             config: serde_json::to_value(&plan.resolved).unwrap_or(serde_json::Value::Null),
         }
     }
@@ -618,7 +621,9 @@ impl Drop for SampleStream {
 /// (the latest run of this task).
 fn write_report(dir: &Path, opts: &RunOptions, stem: &str, r: &Report) -> Result<()> {
     let stem = if opts.task_count > 1 { format!("{stem}-{:05}-of-{:05}", opts.task_index, opts.task_count) } else { stem.to_string() };
-    let bytes = serde_json::to_vec_pretty(r).expect("json");
+    let mut r = r.clone();
+    r.peak_rss_mb = crate::provenance::peak_rss_kb().map(|k| k as f64 / 1024.0);
+    let bytes = serde_json::to_vec_pretty(&r).expect("json");
     let runs = dir.join("reports");
     std::fs::create_dir_all(&runs).map_err(|e| Error::Io { path: runs.clone(), cause: e })?;
     crate::io::write_atomic(&runs.join(r.provenance.file_name(&stem)), |w| w.write_all(&bytes))?;

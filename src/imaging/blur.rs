@@ -572,7 +572,11 @@ mod tests {
             let got = b.blur_region(&fr, 0, 0, w, h);
             for (c, rms) in rms_vs_direct(&b, &fr, &got).into_iter().enumerate() {
                 let levels = rms * 255.0;
-                assert!(bounds[c] <= budget && levels <= bounds[c], "budget {budget}, channel {c}: measured {levels:.4} levels, bound {:.4}", bounds[c]);
+                assert!(
+                    bounds[c] <= budget && levels <= bounds[c],
+                    "budget {budget}, channel {c}: measured {levels:.4} levels, bound {:.4}",
+                    bounds[c]
+                );
                 assert!(levels > 1e-5, "budget {budget}, channel {c}: no error at ranks {:?}", b.ranks());
             }
             seen.push(b.ranks());

@@ -171,6 +171,11 @@ pub(super) fn fft_floor(w: usize, h: usize, window: usize, repeats: usize, ff_de
 
 #[cfg(feature = "ffmpeg")]
 pub(super) fn bench_plan(mode: &str, clip: &std::path::Path, out: &std::path::Path) -> crate::Result<crate::config::Plan> {
+    crate::config::plan(bench_table(mode, clip, out)?, &format!("bench ({mode})"))
+}
+
+/// The configuration of [`bench_plan`], as a TOML table.
+fn bench_table(mode: &str, clip: &std::path::Path, out: &std::path::Path) -> crate::Result<toml::Table> {
     let mut sets = vec![
         format!("sources.video.paths=[{:?}]", clip.display().to_string()),
         format!("sinks.shards.dir={:?}", out.display().to_string()),
@@ -201,7 +206,35 @@ pub(super) fn bench_plan(mode: &str, clip: &std::path::Path, out: &std::path::Pa
         }
     }
     crate::config::apply_sets(&mut table, &sets).map_err(crate::Error::Invalid)?;
-    crate::config::plan(table, &format!("bench ({mode})"))
+    Ok(table)
+}
+
+/// Peak memory of a whole-frame run of `clip` as its own `pipeline generate` process (from its
+/// report's `peak_rss_mb`): in this process the earlier rounds' caches and allocator pools
+/// would count too.
+#[cfg(feature = "ffmpeg")]
+fn peak_in_child(clip: &std::path::Path, dir: &std::path::Path) -> crate::Result<Option<f64>> {
+    let out = dir.join("out-4k");
+    let config = dir.join("full-frame.toml");
+    let table = bench_table("full frame", clip, &out)?;
+    let text = toml::to_string(&table).map_err(|e| crate::Error::Invalid(format!("bench config: {e}")))?;
+    std::fs::write(&config, text).map_err(|e| crate::Error::Io { path: config.clone(), cause: e })?;
+    let exe = std::env::current_exe().map_err(|e| crate::Error::Io { path: "current executable".into(), cause: e })?;
+    let status = std::process::Command::new(&exe)
+        .arg("generate")
+        .arg("--config")
+        .arg(&config)
+        .args(["--progress", "never"])
+        .stdout(std::process::Stdio::null())
+        .status()
+        .map_err(|e| crate::Error::Io { path: exe.clone(), cause: e })?;
+    if !status.success() {
+        return Err(crate::Error::Invalid(format!("bench: the 4K run of {} failed ({status})", clip.display())));
+    }
+    let report = out.join("report.json");
+    let text = std::fs::read_to_string(&report).map_err(|e| crate::Error::Io { path: report.clone(), cause: e })?;
+    let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| crate::Error::File { path: report.clone(), why: e.to_string() })?;
+    Ok(v["peak_rss_mb"].as_f64())
 }
 
 /// `bench generate`: generation speed beside FFmpeg's decode-only speed of the same clip.
@@ -291,11 +324,7 @@ pub fn generate(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> c
     // Peak memory at 4K: two windows of full frames.
     let uhd = dir.join("bench-3840x2160.mp4");
     make_clip(&uhd, 3840, 2160, fps, 18.0 / fps as f64)?;
-    let out = dir.join("out-4k");
-    let plan = bench_plan("full frame", &uhd, &out)?;
-    let reset = reset_peak_rss();
-    crate::graph::run(&plan, &crate::graph::RunOptions::default())?;
-    let peak_4k = if reset { peak_rss_kb().map(|k| k as f64 / 1024.0) } else { None };
+    let peak_4k = peak_in_child(&uhd, &dir)?;
     eprintln!("bench: full frame at 3840x2160: peak RSS {}", peak_4k.map_or("n/a".into(), |p| format!("{p:.0} MB")));
     let _ = std::fs::remove_dir_all(&dir);
     Ok(GenerateBench {

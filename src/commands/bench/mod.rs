@@ -57,8 +57,7 @@ pub(super) fn python_imports(modules: &str) -> bool {
 
 /// Peak resident memory (kB) since the last [`reset_peak_rss`], from /proc (Linux).
 pub fn peak_rss_kb() -> Option<u64> {
-    let s = std::fs::read_to_string("/proc/self/status").ok()?;
-    s.lines().find(|l| l.starts_with("VmHWM:"))?.split_whitespace().nth(1)?.parse().ok()
+    crate::provenance::peak_rss_kb()
 }
 
 /// Resets the peak-RSS counter (Linux 4.0+); false where unsupported.
