@@ -94,11 +94,11 @@ pub(super) fn band_rows(k: usize, h: usize, w: usize) -> usize {
 
 /// The im2col matrix of rows `r0..r1` of one sample `x` (`cin` planes of `h x w`): row
 /// `(ci, ky, kx)` holds `x[ci, y + ky - p, x + kx - p]` (zero outside) for each pixel of the band.
+/// Every value of `col` is written (copied or zeroed), so the buffer is reused without clearing.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn im2col(x: &[f32], cin: usize, h: usize, w: usize, k: usize, r0: usize, r1: usize, col: &mut Vec<f32>) {
     let p = (k / 2) as isize;
     let npx = (r1 - r0) * w;
-    col.clear();
     col.resize(cin * k * k * npx, 0.0);
     for ci in 0..cin {
         let plane = &x[ci * h * w..(ci + 1) * h * w];
@@ -106,19 +106,20 @@ pub(super) fn im2col(x: &[f32], cin: usize, h: usize, w: usize, k: usize, r0: us
             for kx in 0..k {
                 let row = &mut col[((ci * k + ky) * k + kx) * npx..][..npx];
                 let dx = kx as isize - p;
+                // dst[j] = src[j + dx] where 0 <= j + dx < w, zero elsewhere.
+                let lo = ((-dx).max(0) as usize).min(w);
+                let hi = ((w as isize - dx).min(w as isize).max(0) as usize).max(lo);
                 for y in r0..r1 {
+                    let dst = &mut row[(y - r0) * w..][..w];
                     let sy = y as isize + ky as isize - p;
                     if sy < 0 || sy >= h as isize {
-                        continue; // already zero
+                        dst.fill(0.0);
+                        continue;
                     }
                     let src = &plane[sy as usize * w..][..w];
-                    let dst = &mut row[(y - r0) * w..][..w];
-                    // dst[j] = src[j + dx] where 0 <= j + dx < w.
-                    let lo = (-dx).max(0) as usize;
-                    let hi = (w as isize - dx).min(w as isize).max(0) as usize;
-                    if lo < hi {
-                        dst[lo..hi].copy_from_slice(&src[(lo as isize + dx) as usize..(hi as isize + dx) as usize]);
-                    }
+                    dst[..lo].fill(0.0);
+                    dst[lo..hi].copy_from_slice(&src[(lo as isize + dx) as usize..(hi as isize + dx) as usize]);
+                    dst[hi..].fill(0.0);
                 }
             }
         }
