@@ -59,7 +59,7 @@ pub struct EvalConfig {
     /// Side of a centred square crop to score (0: the whole frame). The blur still reads the
     /// real pixels around the crop.
     pub crop: usize,
-    /// Side-by-side PNGs (blurred | deblurred | sharp) to write.
+    /// Side-by-side PNGs (blurred | deblurred | sharp) to write, spread over the videos.
     pub examples: usize,
     pub tile: usize,
     pub overlap: usize,
@@ -327,7 +327,15 @@ pub fn run(
     let bar = crate::progress::Bar::new(progress, "eval", "windows", Some(total));
     let top_sigma = e.sigmas.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     let mut records = Vec::new();
-    let mut examples_left = e.examples;
+    // Examples spread evenly over the videos (different content, not N after N of the first
+    // clip), each at its video's first sharp frame and the largest sigma: the middle window
+    // length, then the next ones where a video gets more than one.
+    let mut example_slots: Vec<(usize, usize)> = Vec::new();
+    for i in 0..e.examples {
+        let vi = i * paths.len() / e.examples;
+        let earlier = example_slots.iter().filter(|s| s.0 == vi).count();
+        example_slots.push((vi, e.windows[(e.windows.len() / 2 + earlier) % e.windows.len()]));
+    }
     let mut reg = [0; 4];
     for (vi, path) in paths.iter().enumerate() {
         let first = e.skip as u64;
@@ -348,7 +356,7 @@ pub fn run(
         let video = path.display().to_string();
         let log = crate::imaging::truth::MotionLog::read(path)?;
         let centres = (0..e.windows_per_video as u64).map(|k| half + k * spacing).take_while(|&c| c + half < frames.len() as u64);
-        for c in centres {
+        for (ci, c) in centres.enumerate() {
             let mid = &frames[c as usize];
             let sharp = to_8bit(&mid.linear_crop(rx, ry, rw, rh), rw, rh, e.curve);
             for (ni, &n) in e.windows.iter().enumerate() {
@@ -371,8 +379,7 @@ pub fn run(
                             std::array::from_fn(|ch| crate::recon::wiener_bound(&lin[ch], rw, rh, &k[ch], var[ch], key ^ ch as u64).1);
                         quality(&to_8bit(&rec, rw, rh, e.curve), &sharp, rw, rh)
                     });
-                    let example = (examples_left > 0 && sigma == top_sigma).then(|| {
-                        examples_left -= 1;
+                    let example = (ci == 0 && sigma == top_sigma && example_slots.contains(&(vi, n))).then(|| {
                         let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
                         format!("examples/{vi:02}-{stem}-f{:05}-n{n:02}-s{sigma}.png", first + c)
                     });
