@@ -103,23 +103,6 @@ fn keep(kernels: &[Vec<f32>], vals: &[f64], vecs: &[Vec<f64>], r: usize, bound_l
     LowRank { basis, coeffs, rel_error: (dropped.max(0.0) / total).sqrt(), bound_levels }
 }
 
-/// Factorises `kernels` keeping the smallest rank whose dropped energy is at most
-/// `tol^2` of the total.
-pub fn factorise(kernels: &[Vec<f32>], tol: f64) -> LowRank {
-    let (vals, vecs) = gram_eigen(kernels);
-    let total: f64 = vals.iter().map(|v| v.max(0.0)).sum::<f64>().max(1e-300);
-    let most = useful(&vals);
-    let mut r = 0;
-    let mut dropped = total;
-    while r < most && dropped > tol * tol * total {
-        dropped -= vals[r].max(0.0);
-        r += 1;
-    }
-    let r = r.max(1);
-    let bound = error_bounds(kernels, &vecs)[r];
-    keep(kernels, &vals, &vecs, r, bound)
-}
-
 /// Factorises square kernels (`side x side`, row-major) keeping the smallest rank whose error
 /// bound is at most `max_error` 8-bit levels RMS (see the module docs); 0 keeps every useful
 /// direction.
@@ -196,7 +179,7 @@ mod tests {
     #[test]
     fn full_rank_reconstructs_exactly_and_rank_one_is_found() {
         let k: Vec<Vec<f32>> = (0..5).map(|i| (0..25).map(|p| ((i * 31 + p * 17) % 11) as f32).collect()).collect();
-        let f = factorise(&k, 0.0);
+        let f = factorise_within(&k, 0.0);
         for (i, ki) in k.iter().enumerate() {
             for p in 0..25 {
                 let rec: f64 = (0..f.basis.len()).map(|r| f.coeffs[i][r] * f.basis[r][p] as f64).sum();
@@ -204,6 +187,6 @@ mod tests {
             }
         }
         let same: Vec<Vec<f32>> = (0..4).map(|i| k[0].iter().map(|v| v * (i + 1) as f32).collect()).collect();
-        assert_eq!(factorise(&same, 1e-6).basis.len(), 1);
+        assert_eq!(factorise_within(&same, 1e-6).basis.len(), 1);
     }
 }
