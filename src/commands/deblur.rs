@@ -7,7 +7,7 @@
 use super::ConfigArgs;
 use crate::io::{png as png_io, write_atomic};
 use crate::model::fast::FastNet;
-use crate::model::infer::{run_frame, run_rows, Tiling};
+use crate::model::infer::{run_rows, Tiling};
 use crate::progress::{Bar, ProgressMode};
 use crate::{Error, Result};
 use clap::Args;
@@ -139,6 +139,7 @@ impl DeblurReport {
 
 /// Where a file is written before it is renamed into place (same folder, ending in the same
 /// extension, so FFmpeg picks the same container; removed at the next start if the run is killed).
+#[cfg(feature = "ffmpeg")]
 fn temp_for(path: &Path) -> PathBuf {
     let name = path.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
     let ext = path.extension().map(|s| s.to_string_lossy().into_owned());
@@ -188,7 +189,7 @@ pub fn video(
                 )));
             }
             let rgb = to_rgb8(&f, reader.float);
-            let out = run_frame(net, &rgb, w, h, tiling);
+            let out = crate::model::infer::run_frame(net, &rgb, w, h, tiling);
             writer.write_rgb8(&out).map_err(Error::video(output))?;
             bar.inc(1);
         }
@@ -263,7 +264,8 @@ enum Picture {
     /// A PNG: grey, grey + alpha, RGB or RGBA, 8 or 16 bits.
     Png(png_io::Samples),
     /// Read by FFmpeg (JPEG, TIFF, OpenEXR): 8-bit or 16-bit encoded, or linear float (`float`),
-    /// as RGB; `alpha` and `grey` say what the file had.
+    /// as RGB; `alpha` and `grey` say what the file had. (Never made in a build without FFmpeg.)
+    #[cfg_attr(not(feature = "ffmpeg"), allow(dead_code))]
     Decoded { frame: crate::frame::Frame, float: bool, alpha: bool, grey: bool },
 }
 
@@ -601,7 +603,13 @@ pub fn command(a: DeblurArgs) -> anyhow::Result<()> {
         std::fs::create_dir_all(parent).map_err(|e| Error::Io { path: parent.to_path_buf(), cause: e })?;
     }
     let r = match kind {
+        #[cfg(feature = "ffmpeg")]
         OutKind::Video => crate::commands::deblur::video(&net, &name, &input, &out, tiling, lossless, bar)?,
+        #[cfg(not(feature = "ffmpeg"))]
+        OutKind::Video => {
+            let _ = lossless;
+            return Err(Error::Usage(format!("{}: videos need a build with the `ffmpeg` feature", input.display())).into());
+        }
         OutKind::Folder | OutKind::Image => crate::commands::deblur::images(&net, &name, &input, &out, tiling, bar)?,
     };
     let rp = if kind == OutKind::Folder { out.join("report.json") } else { PathBuf::from(format!("{}.report.json", out.display())) };

@@ -85,6 +85,7 @@ pub fn run_pipeline(name: &str, out: &Path, sets: &[&str]) -> Output {
 
 /// A tiny training file (shallow-4, batch 2, `steps` steps, a checkpoint every 2) on `shards`
 /// that writes to `out/run`; returns its path (`out/train.toml`).
+#[cfg_attr(not(feature = "train"), allow(dead_code))]
 pub fn tiny_train_config(shards: &Path, out: &Path, steps: usize) -> PathBuf {
     let path = out.join("train.toml");
     std::fs::write(

@@ -1,3 +1,4 @@
+#[cfg_attr(not(feature = "ffmpeg"), allow(unused_imports))]
 use super::*;
 
 #[derive(Debug, serde::Serialize)]

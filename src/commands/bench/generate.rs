@@ -118,6 +118,7 @@ pub struct FftFloor {
 }
 
 /// Median seconds of one forward transform with its product at `hp x wp` (one thread).
+#[cfg_attr(not(feature = "ffmpeg"), allow(dead_code))] // used by the benches that need FFmpeg
 pub(super) fn time_transform(hp: usize, wp: usize, repeats: usize) -> f64 {
     use crate::optics::fft::FftConv;
     let mut conv = FftConv::new(hp, wp);
@@ -136,6 +137,7 @@ pub(super) fn time_transform(hp: usize, wp: usize, repeats: usize) -> f64 {
 }
 
 /// Times the transforms of one full-frame window of the default coded camera.
+#[cfg_attr(not(feature = "ffmpeg"), allow(dead_code))] // used by the benches that need FFmpeg
 pub(super) fn fft_floor(w: usize, h: usize, window: usize, repeats: usize, ff_decode: f64) -> crate::Result<FftFloor> {
     use crate::optics::fft::fast_size;
     let cam = std::sync::Arc::new(crate::optics::Camera::new(
@@ -175,6 +177,7 @@ pub(super) fn bench_plan(mode: &str, clip: &std::path::Path, out: &std::path::Pa
 }
 
 /// The configuration of [`bench_plan`], as a TOML table.
+#[cfg(feature = "ffmpeg")]
 fn bench_table(mode: &str, clip: &std::path::Path, out: &std::path::Path) -> crate::Result<toml::Table> {
     let mut sets = vec![
         format!("sources.video.paths=[{:?}]", clip.display().to_string()),

@@ -42,11 +42,13 @@ pub fn median(v: &mut [f64]) -> f64 {
 }
 
 /// The Python that runs the PyTorch and SciPy baselines: `PIPELINE_PYTHON`, else `python3`.
+#[cfg_attr(not(feature = "ffmpeg"), allow(dead_code))] // used by the benches that need FFmpeg
 pub(super) fn python() -> String {
     std::env::var("PIPELINE_PYTHON").unwrap_or_else(|_| "python3".into())
 }
 
 /// Whether [`python`] imports `modules` (`"numpy, scipy"`): a baseline that needs them runs.
+#[cfg_attr(not(feature = "ffmpeg"), allow(dead_code))] // used by the benches that need FFmpeg
 pub(super) fn python_imports(modules: &str) -> bool {
     std::process::Command::new(python())
         .args(["-c", &format!("import {modules}")])
