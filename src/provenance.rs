@@ -79,7 +79,8 @@ fn cpu_features() -> Vec<&'static str> {
     v
 }
 
-/// This process's peak resident memory so far in KiB (Linux `VmHWM`); None elsewhere.
+/// This process's peak resident memory in KiB (Linux `VmHWM`: since the start, or since the
+/// last reset through `/proc/self/clear_refs`); None elsewhere.
 pub fn peak_rss_kb() -> Option<u64> {
     let s = std::fs::read_to_string("/proc/self/status").ok()?;
     s.lines().find(|l| l.starts_with("VmHWM:"))?.split_whitespace().nth(1)?.parse().ok()

@@ -259,27 +259,13 @@ pub fn xt_slice(cam: &Camera, n: usize, travel: f64, x_len: usize) -> Result<[Ve
 /// zero frequency moved to the centre: a centred symmetric image has a real spectrum, so the
 /// phase shows the image's asymmetries, not where it sits.
 pub fn fft2_centred(img: &[f64], w: usize, h: usize) -> Vec<Complex64> {
-    let mut planner = rustfft::FftPlanner::<f64>::new();
-    let (fw, fh) = (planner.plan_fft_forward(w), planner.plan_fft_forward(h));
     let mut a = vec![Complex64::new(0.0, 0.0); w * h];
     for y in 0..h {
         for x in 0..w {
             a[((y + h - h / 2) % h) * w + (x + w - w / 2) % w] = Complex64::new(img[y * w + x], 0.0);
         }
     }
-    for row in a.chunks_exact_mut(w) {
-        fw.process(row);
-    }
-    let mut col = vec![Complex64::new(0.0, 0.0); h];
-    for x in 0..w {
-        for y in 0..h {
-            col[y] = a[y * w + x];
-        }
-        fh.process(&mut col);
-        for y in 0..h {
-            a[y * w + x] = col[y];
-        }
-    }
+    crate::optics::fft::fft2_f64(&mut a, w, h);
     let mut out = vec![Complex64::new(0.0, 0.0); w * h];
     for y in 0..h {
         for x in 0..w {

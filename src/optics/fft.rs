@@ -47,6 +47,27 @@ pub fn fast_size(n: usize) -> usize {
     }
 }
 
+/// In-place forward 2-D DFT of a row-major `w x h` complex array, in f64 (rows, then columns):
+/// for the small exact transforms outside the hot path (error bounds, figures).
+pub fn fft2_f64(a: &mut [num_complex::Complex64], w: usize, h: usize) {
+    assert_eq!(a.len(), w * h, "fft2_f64: {w} x {h} values");
+    let mut planner = FftPlanner::<f64>::new();
+    let (fw, fh) = (planner.plan_fft_forward(w), planner.plan_fft_forward(h));
+    for row in a.chunks_exact_mut(w) {
+        fw.process(row);
+    }
+    let mut col = vec![num_complex::Complex64::new(0.0, 0.0); h];
+    for x in 0..w {
+        for y in 0..h {
+            col[y] = a[y * w + x];
+        }
+        fh.process(&mut col);
+        for y in 0..h {
+            a[y * w + x] = col[y];
+        }
+    }
+}
+
 /// FFT convolver for images of `hp x wp` (already padded) pixels.
 pub struct FftConv {
     pub hp: usize,

@@ -13,7 +13,6 @@
 //! spectra sampled on a grid twice the kernel's side). A budget of 0 keeps every direction:
 //! exact up to rounding.
 use num_complex::Complex64;
-use rustfft::FftPlanner;
 
 /// Eigenvalues (descending) and eigenvectors (columns, `v[i][r]`) of a symmetric matrix.
 pub fn symmetric_eigen(a: &[Vec<f64>]) -> (Vec<f64>, Vec<Vec<f64>>) {
@@ -66,8 +65,6 @@ pub fn symmetric_eigen(a: &[Vec<f64>]) -> (Vec<f64>, Vec<Vec<f64>>) {
 pub struct LowRank {
     pub basis: Vec<Vec<f32>>,
     pub coeffs: Vec<Vec<f64>>,
-    /// Relative Frobenius error of the kept rank.
-    pub rel_error: f64,
     /// Upper bound on the RMS error of the blurred window, in 8-bit levels of linear light, for
     /// sub-frames in [0, 1] (see the module docs). 0 when every direction is kept.
     pub bound_levels: f64,
@@ -91,8 +88,6 @@ fn useful(vals: &[f64]) -> usize {
 fn keep(kernels: &[Vec<f32>], vals: &[f64], vecs: &[Vec<f64>], r: usize, bound_levels: f64) -> LowRank {
     let n = kernels.len();
     let len = kernels[0].len();
-    let total: f64 = vals.iter().map(|v| v.max(0.0)).sum::<f64>().max(1e-300);
-    let dropped: f64 = vals[r..].iter().map(|v| v.max(0.0)).sum();
     let basis: Vec<Vec<f32>> = (0..r)
         .map(|q| {
             let s = vals[q].max(1e-300).sqrt();
@@ -100,7 +95,7 @@ fn keep(kernels: &[Vec<f32>], vals: &[f64], vecs: &[Vec<f64>], r: usize, bound_l
         })
         .collect();
     let coeffs = (0..n).map(|k| (0..r).map(|q| vecs[k][q] * vals[q].max(0.0).sqrt()).collect()).collect();
-    LowRank { basis, coeffs, rel_error: (dropped.max(0.0) / total).sqrt(), bound_levels }
+    LowRank { basis, coeffs, bound_levels }
 }
 
 /// Factorises square kernels (`side x side`, row-major) keeping the smallest rank whose error
@@ -125,8 +120,6 @@ fn error_bounds(kernels: &[Vec<f32>], vecs: &[Vec<f64>]) -> Vec<f64> {
     // Spectra of the eigen-directions' kernel combinations U_q = sum_i v_iq K_i (= sqrt(l_q) B_q).
     // The dropped part of K_k past rank r is sum_{q >= r} v_kq U_q.
     let m = 2 * side;
-    let mut planner = FftPlanner::<f64>::new();
-    let fft = planner.plan_fft_forward(m);
     let spectrum = |img: &[f64]| -> Vec<Complex64> {
         let mut a = vec![Complex64::new(0.0, 0.0); m * m];
         for y in 0..side {
@@ -134,19 +127,7 @@ fn error_bounds(kernels: &[Vec<f32>], vecs: &[Vec<f64>]) -> Vec<f64> {
                 a[y * m + x].re = img[y * side + x];
             }
         }
-        for row in a.chunks_mut(m) {
-            fft.process(row);
-        }
-        let mut col = vec![Complex64::new(0.0, 0.0); m];
-        for x in 0..m {
-            for y in 0..m {
-                col[y] = a[y * m + x];
-            }
-            fft.process(&mut col);
-            for y in 0..m {
-                a[y * m + x] = col[y];
-            }
-        }
+        crate::optics::fft::fft2_f64(&mut a, m, m);
         a
     };
     let u: Vec<Vec<Complex64>> = (0..n)

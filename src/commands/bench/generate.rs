@@ -278,7 +278,7 @@ pub fn generate(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> c
             let reset = reset_peak_rss();
             let o = crate::graph::run(&plan, &crate::graph::RunOptions::default())?;
             if reset {
-                let p = peak_rss_kb().map(|k| k as f64 / 1024.0);
+                let p = crate::provenance::peak_rss_kb().map(|k| k as f64 / 1024.0);
                 peak = match (peak, p) {
                     (Some(a), Some(b)) => Some(f64::max(a, b)),
                     (a, b) => a.or(b),

@@ -57,11 +57,6 @@ pub(super) fn python_imports(modules: &str) -> bool {
         .is_ok_and(|s| s.success())
 }
 
-/// Peak resident memory (kB) since the last [`reset_peak_rss`], from /proc (Linux).
-pub fn peak_rss_kb() -> Option<u64> {
-    crate::provenance::peak_rss_kb()
-}
-
 /// Resets the peak-RSS counter (Linux 4.0+); false where unsupported.
 pub fn reset_peak_rss() -> bool {
     std::fs::write("/proc/self/clear_refs", "5").is_ok()
