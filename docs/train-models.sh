@@ -10,6 +10,7 @@
 #   INIT=models/unet16-coded STEPS=5000 LR=5e-4 NAME=ft bash docs/train-models.sh phase_coded 16
 #                                                   # fine-tuning a shipped model: a run of its own
 #                                                   # (STEPS new steps, a schedule peaking at LR)
+#   SETS="7 9 11 13 9-added" ...                    # shard sets to train on ($DATA/shards/CAM-nSET)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 CAM=${1:?camera: phase_coded or conventional}
@@ -21,7 +22,7 @@ LR=${LR:-1e-3}
 WARMUP=${WARMUP:-200}
 PIPELINE=${PIPELINE:-target/release/pipeline}
 shards=""
-for n in 7 9 11 13; do shards="$shards${shards:+, }\"$DATA/shards/$CAM-n$n/*.tar\""; done
+for n in ${SETS:-7 9 11 13}; do shards="$shards${shards:+, }\"$DATA/shards/$CAM-n$n/*.tar\""; done
 if [ "$WIDTH" = shallow ]; then
   config=pipelines/train-shallow.toml; name=shallow32-$CAM; model=()
 else

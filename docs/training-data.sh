@@ -10,7 +10,11 @@
 #   training scenes: mate-backgrounds (nature photos, GPL-2+), plasma-workspace-wallpapers
 #     (GPL-2+), lomiri-wallpapers and lomiri-wallpapers-16.04 (CC-BY-SA / CC-BY, per file),
 #     extremetuxracer-data (terrain photo textures, GPL-2+), python3-skimage (scikit-image's
-#     sample photos; public domain / CC0, skimage/data/README.txt)
+#     sample photos; public domain / CC0, skimage/data/README.txt), gcompris-qt-data (Wikimedia
+#     Commons photos of animals, monuments and musicians packed in Qt resource files; public
+#     domain / CC0 / CC-BY / CC-BY-SA, per file in each activity's README, which names the source
+#     page), tuxpaint-data (photo templates, GPL-2+), palapeli-data (puzzle photos, GPL-2+),
+#     lxqt-themes (photo wallpapers only, CC-BY-SA-3.0 per wallpapers/License)
 #   training objects (cut-outs with alpha): tuxpaint-stamps-default (GPL-2; photographic stamps
 #     only: no `cartoon/`, `symbols/` or `space/`)
 #   TEST ONLY (no file of these packages is used in training): ukui-wallpapers (CC-BY-SA-3.0),
@@ -27,7 +31,8 @@ PIPELINE=${PIPELINE:-target/release/pipeline}
 mkdir -p "$DATA/debs" "$DATA/src" "$DATA/photos/train" "$DATA/photos/test" "$DATA/objects"
 DATA=$(cd "$DATA" && pwd)
 
-TRAIN_PKGS=(mate-backgrounds plasma-workspace-wallpapers lomiri-wallpapers lomiri-wallpapers-16.04 extremetuxracer-data python3-skimage tuxpaint-stamps-default)
+TRAIN_PKGS=(mate-backgrounds plasma-workspace-wallpapers lomiri-wallpapers lomiri-wallpapers-16.04 extremetuxracer-data python3-skimage
+            gcompris-qt-data tuxpaint-data palapeli-data lxqt-themes tuxpaint-stamps-default)
 TEST_PKGS=(ukui-wallpapers lomiri-wallpapers-20.04 python3-sklearn)
 
 photos() {
@@ -39,9 +44,50 @@ photos() {
     [ -d "$DATA/src/$p" ] || dpkg-deb -x "$deb" "$DATA/src/$p"
   done
   python3 - "$DATA" <<'PY'
-import fnmatch, glob, os, re, subprocess, sys
+import fnmatch, glob, os, re, struct, subprocess, sys, zlib
 data = sys.argv[1]
 src = f"{data}/src"
+
+def rcc_files(path):
+    """(name, bytes) of each file in a Qt binary resource (.rcc): 'qres', version, offsets of the
+    tree, data and names; tree entries of 14 (v1) or 22 bytes; flag 2 a folder, 1 zlib, 4 zstd."""
+    b = open(path, "rb").read()
+    if b[:4] != b"qres":
+        raise SystemExit(f"{path}: not a Qt resource file")
+    ver, tree, dat, names = struct.unpack(">IIII", b[4:20])
+    esz = 14 if ver == 1 else 22
+    def name(off):
+        n = struct.unpack(">H", b[names + off:names + off + 2])[0]
+        return b[names + off + 6:names + off + 6 + 2 * n].decode("utf-16-be")
+    def walk(i, prefix):
+        e = tree + i * esz
+        noff, flags = struct.unpack(">IH", b[e:e + 6])
+        nm = name(noff) if i else ""
+        if flags & 2:
+            count, first = struct.unpack(">II", b[e + 6:e + 14])
+            for c in range(first, first + count):
+                yield from walk(c, f"{prefix}{nm}/" if i else "")
+        else:
+            off = dat + struct.unpack(">I", b[e + 10:e + 14])[0]
+            raw = b[off + 4:off + 4 + struct.unpack(">I", b[off:off + 4])[0]]
+            if flags & 1:
+                raw = zlib.decompress(raw[4:])
+            if not flags & 4:  # zstd entries are left out: none of the photographs is one
+                yield prefix + nm, raw
+    yield from walk(0, "")
+
+def readme_licences(text):
+    """GCompris's per-folder README: stanzas of Copyright/License/Source/Files; the licence of
+    each listed file whose stanza names a Source (the photographs)."""
+    out = {}
+    for stanza in re.split(r"\n\s*\n", text):
+        lic = re.search(r"^License:\s*(.+)$", stanza, re.M)
+        srcl = re.search(r"^Source:\s*(\S+)", stanza, re.M)
+        files = re.search(r"^Files:\s*(.*)", stanza, re.M | re.S)
+        if lic and srcl and files:
+            for f in files.group(1).split():
+                out[f] = f"{lic.group(1).strip()} ({srcl.group(1)})"
+    return out
 
 def version(pkg):
     deb = glob.glob(f"{data}/debs/{pkg}_*.deb")[0]
@@ -117,6 +163,30 @@ for pkg in ["lomiri-wallpapers", "lomiri-wallpapers-16.04"]:
             scene(pkg, f, "train")
 for f in g("extremetuxracer-data", "usr/share/games/etr/terrains/*.png"):
     scene("extremetuxracer-data", f, "train")
+# GCompris: the photographs of five activities, unpacked from their resource files.
+for act in ["erase", "explore_monuments", "explore_world_animals", "explore_farm_animals", "explore_world_music"]:
+    files = dict(rcc_files(f"{src}/gcompris-qt-data/usr/share/gcompris-qt/rcc/{act}.rcc"))
+    for readme in [n for n in files if n.endswith("/README")]:
+        folder = readme[: -len("README")]
+        for rel, lic in sorted(readme_licences(files[readme].decode("utf-8", "replace")).items()):
+            n = folder + rel
+            if n not in files or not n.lower().endswith((".webp", ".jpg", ".png")):
+                continue
+            out = f"{src}/gcompris-qt-data/unpacked/{n}"
+            if not os.path.exists(out):
+                os.makedirs(os.path.dirname(out), exist_ok=True)
+                open(out, "wb").write(files[n])
+            if min(probe(out)) >= 400:  # icons and thumbnails are not scenes
+                scene("gcompris-qt-data", out, "train", lic)
+for f in g("tuxpaint-data", "usr/share/tuxpaint/templates/*.jpg"):
+    scene("tuxpaint-data", f, "train")
+for f in g("palapeli-data", "usr/share/palapeli/collection/*.jpg"):
+    scene("palapeli-data", f, "train")
+# LXQt: its photographs only (the rest are drawn: origami, triangles, logos).
+for n in ["Butterfly-Kenneth-Wimer.jpg", "Valendas.png", "after-the-rain.jpg", "appleflower.png", "beam.png", "butterfly.png",
+          "cloud.png", "drop.png", "flowers.png", "fog.jpg", "this-is-not-windows.jpg"]:
+    for f in g("lxqt-themes", f"usr/share/lxqt/wallpapers/{n}"):
+        scene("lxqt-themes", f, "train", "CC-BY-SA-3.0 (usr/share/lxqt/wallpapers/License)")
 sk = "public domain / CC0 (skimage/data/README.txt)"
 for n in ["astronaut.png", "chelsea.png", "coffee.png", "rocket.jpg", "motorcycle_left.png", "motorcycle_right.png", "grass.png",
           "gravel.png", "brick.png", "hubble_deep_field.jpg", "retina.jpg", "ihc.png", "camera.png", "moon.png", "coins.png"]:
@@ -158,14 +228,16 @@ PY
 
 # Training shards: windows of N = 7, 9, 11 and 13 through each camera, the same clips, motions,
 # noise and patches for both (the seed depends on N only).
+# NS, PHOTOS and SET render an extra set beside these (the models' second round, models/README.md):
+#   STEP=shards NS=9 PHOTOS=$DATA/photos/train-added SET=added SEED=200 bash docs/training-data.sh
 shards() {
-  for n in 7 9 11 13; do
+  for n in ${NS:-7 9 11 13}; do
     for cam in phase_coded conventional; do
-      d="$DATA/shards/$cam-n$n"
+      d="$DATA/shards/$cam-n$n${SET:+-$SET}"
       [ -f "$d/manifest.json" ] && [ "${REDO:-0}" = 0 ] && continue
-      "$PIPELINE" run pipelines/train-data.toml -o "$d" --set seed=$((11 + n)) --set transforms.blur.window=$n \
-        --set sources.stills.frames=$((8 * n)) --set transforms.blur.camera.type=$cam --set sinks.shards.prefix=n$n \
-        --set "sources.stills.paths=[\"$DATA/photos/train\"]" --set "sources.stills.motion.object_paths=[\"$DATA/objects\"]"
+      "$PIPELINE" run pipelines/train-data.toml -o "$d" --set seed=$((${SEED:-11} + n)) --set transforms.blur.window=$n \
+        --set sources.stills.frames=$((8 * n)) --set transforms.blur.camera.type=$cam --set sinks.shards.prefix=n$n${SET:+-$SET} \
+        --set "sources.stills.paths=[\"${PHOTOS:-$DATA/photos/train}\"]" --set "sources.stills.motion.object_paths=[\"$DATA/objects\"]"
     done
   done
 }
