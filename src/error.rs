@@ -43,6 +43,16 @@ pub enum Error {
     /// code 130, the shell's for SIGINT.
     #[error("interrupted: {0}")]
     Interrupted(String),
+    /// burn could not serialise a network or optimizer state (`what` names which); the cause is kept.
+    #[error("{what}: burn could not serialise it")]
+    Serialise { what: String, source: Box<dyn std::error::Error + Send + Sync> },
+    /// The worker threads could not be started (the OS refused them).
+    #[error("could not start {what} threads")]
+    Threads { what: &'static str, source: rayon::ThreadPoolBuildError },
+    /// Training diverged: the loss of a step was not finite. Nothing after the last checkpoint is
+    /// kept; `latest` names the last good one (resume from it with a lower learning rate).
+    #[error("step {step}: the loss is {loss}; stopped. The last good checkpoint is listed in {}", latest.display())]
+    Diverged { step: usize, loss: f64, latest: PathBuf },
     /// A file name read from a file in a folder the tool works in (a manifest's shard, a run's
     /// `latest.json`) that would lead outside that folder: refused, nothing opened through it.
     #[error("{}: {field} = {name:?} is {why}; refusing to follow it", file.display())]

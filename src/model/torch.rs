@@ -121,8 +121,9 @@ fn burn_names(arch: crate::model::Arch) -> Result<std::collections::HashMap<Stri
     use burn::store::{ModuleSnapshot, SafetensorsStore};
     let net = crate::model::Net::new(arch, &burn::tensor::Device::flex());
     let mut store = SafetensorsStore::from_bytes(None);
-    net.save_into(&mut store).map_err(|e| Error::Invalid(format!("{}: {e}", arch.name())))?;
-    let bytes = store.get_bytes().map_err(|e| Error::Invalid(format!("{}: {e}", arch.name())))?;
+    let ser = |e: burn::store::SafetensorsStoreError| Error::Serialise { what: arch.name(), source: Box::new(e) };
+    net.save_into(&mut store).map_err(ser)?;
+    let bytes = store.get_bytes().map_err(ser)?;
     let (entries, _) = read_safetensors(&bytes, &arch.name())?;
     Ok(entries.into_iter().filter_map(|e| torch_name(&e.name).map(|t| (t, e.name))).collect())
 }

@@ -241,11 +241,7 @@ impl Trainer {
         let lr = cfg.lr_at(step);
         let lv = self.engine.step(&x, &y, lr, cfg.optim.huber_delta, cfg.optim.adam_epsilon);
         if !lv.is_finite() {
-            return Err(Error::Invalid(format!(
-                "step {}: the loss is {lv}; stopped. The last good checkpoint is listed in {}",
-                step + 1,
-                self.dir.join("latest.json").display()
-            )));
+            return Err(Error::Diverged { step: step + 1, loss: lv, latest: self.dir.join("latest.json") });
         }
         self.losses.push(LossPoint { step: step + 1, loss: lv, lr });
         self.step += 1;
