@@ -156,7 +156,10 @@ impl Sink for TrainerSink {
         self.pump(true)?;
         let t = self.trainer.take().expect("open");
         if t.step == 0 {
-            return Err(Error::Usage(format!("the stream ended before one batch of {} training samples: more input, or a smaller optim.batch", t.cfg.optim.batch)));
+            return Err(Error::Usage(format!(
+                "the stream ended before one batch of {} training samples: more input, or a smaller optim.batch",
+                t.cfg.optim.batch
+            )));
         }
         let r = t.finish()?;
         let v = serde_json::json!({

@@ -76,9 +76,11 @@ impl Engine {
 
     pub(super) fn optim_bytes(&self) -> Result<Vec<u8>> {
         match self {
-            Engine::Burn { optim, .. } => {
-                Ok(optim.clone().into_bytes().map_err(|e| Error::Serialise { what: "optimizer state".into(), source: Box::new(e) })?.to_vec())
-            }
+            Engine::Burn { optim, .. } => Ok(optim
+                .clone()
+                .into_bytes()
+                .map_err(|e| Error::Serialise { what: "optimizer state".into(), source: Box::new(e) })?
+                .to_vec()),
             Engine::Fast { adam, .. } => Ok(adam.to_bytes()),
         }
     }

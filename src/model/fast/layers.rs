@@ -130,19 +130,18 @@ impl ConvBnAct {
         let (gamma, beta, eps, slope) = (&self.gamma, &self.beta, self.eps as f64, self.slope);
         let stats = per_channel(c, hw, [&mut xhat, &mut out], |ch, [mut xhs, mut os]| {
             let zp = |s: usize| &z.d[(s * c + ch) * hw..][..hw];
-            let mean = (0..n).map(|s| zp(s).iter().map(|&v| v as f64).sum::<f64>()).sum::<f64>() / m;
-            let var = (0..n).map(|s| zp(s).iter().map(|&v| (v as f64 - mean).powi(2)).sum::<f64>()).sum::<f64>() / m;
+            let mean = (0..n).map(|s| lanes_sum(zp(s), |v| [v])[0]).sum::<f64>() / m;
+            // Two passes (mean, then squared deviations), not E[z^2] - mean^2, which cancels.
+            let var = (0..n).map(|s| lanes_sum(zp(s), |v| [(v - mean) * (v - mean)])[0]).sum::<f64>() / m;
             let inv = 1.0 / (var + eps).sqrt();
             let (g, b, meanf, invf) = (gamma[ch], beta[ch], mean as f32, inv as f32);
+            // x-hat and the activation in one pass over z.
             for s in 0..n {
-                let xh = &mut *xhs[s];
-                for (d, &v) in xh.iter_mut().zip(zp(s)) {
-                    *d = (v - meanf) * invf;
-                }
-                let o = &mut *os[s];
-                for (d, &v) in o.iter_mut().zip(xh.iter()) {
-                    let p = g * v + b;
-                    *d = if p > 0.0 { p } else { slope * p };
+                for ((xh, o), &v) in xhs[s].iter_mut().zip(os[s].iter_mut()).zip(zp(s)) {
+                    let x = (v - meanf) * invf;
+                    *xh = x;
+                    let p = g * x + b;
+                    *o = if p > 0.0 { p } else { slope * p };
                 }
             }
             (mean as f32, var as f32, inv as f32)
@@ -171,13 +170,23 @@ impl ConvBnAct {
             let mut sg = 0.0f64;
             for (s, dp) in dps.iter_mut().enumerate() {
                 let (o, d, xh) = (&out.d[at(s)..][..hw], &dout.d[at(s)..][..hw], &xhat.d[at(s)..][..hw]);
-                let mut b = 0.0f64;
-                let mut g = 0.0f64;
                 for i in 0..hw {
-                    let v = if o[i] > 0.0 { d[i] } else { slope * d[i] };
-                    dp[i] = v;
+                    dp[i] = if o[i] > 0.0 { d[i] } else { slope * d[i] };
+                }
+                // The two sums in f64 lanes (a running f64 sum would serialise them).
+                let mut acc = [[0.0f64; LANES]; 2];
+                let (dc, xc) = (dp.chunks_exact(LANES), xh.chunks_exact(LANES));
+                let (dr, xr) = (dc.remainder(), xc.remainder());
+                for (dv, xv) in dc.zip(xc) {
+                    for l in 0..LANES {
+                        acc[0][l] += dv[l] as f64;
+                        acc[1][l] += (dv[l] * xv[l]) as f64;
+                    }
+                }
+                let (mut b, mut g) = (acc[0].iter().sum::<f64>(), acc[1].iter().sum::<f64>());
+                for (&v, &x) in dr.iter().zip(xr) {
                     b += v as f64;
-                    g += (v * xh[i]) as f64;
+                    g += (v * x) as f64;
                 }
                 sb += b;
                 sg += g;
