@@ -43,6 +43,42 @@ impl Arch {
             Arch::Shallow { width } => format!("shallow-{width}"),
         }
     }
+
+    /// Multiply-adds of one forward pass over an `h x w` patch, and the weights they use:
+    /// `(macs, weights)`, each convolution's (transposed ones included) `weights x pixels it
+    /// produces`. BatchNorm, activations, pooling and biases are left out (under 1% here).
+    pub fn conv_macs(&self, h: usize, w: usize) -> (usize, usize) {
+        // (cin, cout, kernel side, output pixels) of every convolution, in order.
+        let mut convs: Vec<(usize, usize, usize, usize)> = Vec::new();
+        let px = |level: usize| (h >> level) * (w >> level);
+        match *self {
+            Arch::Unet { base: b } => {
+                let double = |convs: &mut Vec<_>, cin: usize, cout: usize, level: usize| {
+                    convs.push((cin, cout, 3, px(level)));
+                    convs.push((cout, cout, 3, px(level)));
+                };
+                double(&mut convs, 3, b, 0);
+                for (l, (i, o)) in [(b, 2 * b), (2 * b, 4 * b), (4 * b, 8 * b), (8 * b, 8 * b)].into_iter().enumerate() {
+                    double(&mut convs, i, o, l + 1);
+                }
+                // Up(cin, skip, cout) at level l: a 2x2 stride-2 transposed conv (cin -> cin), whose
+                // MACs are its weights x its input pixels (a quarter of the level's), then a double
+                // conv of the concatenation.
+                let ups = [(8 * b, 8 * b, 4 * b, 3), (4 * b, 4 * b, 2 * b, 2), (2 * b, 2 * b, b, 1), (b, b, b, 0)];
+                for (cin, skip, cout, l) in ups {
+                    convs.push((cin, cin, 2, px(l) / 4));
+                    double(&mut convs, cin + skip, cout, l);
+                }
+                convs.push((b, 3, 1, px(0)));
+            }
+            Arch::Shallow { width: c } => {
+                convs.push((3, c, 3, px(0)));
+                convs.extend(std::iter::repeat_n((c, c, 3, px(0)), 8));
+                convs.push((c, 3, 3, px(0)));
+            }
+        }
+        convs.iter().fold((0, 0), |(m, n), &(ci, co, k, p)| (m + ci * co * k * k * p, n + ci * co * k * k))
+    }
 }
 
 fn conv3(cin: usize, cout: usize, device: &Device) -> Conv2d {
@@ -288,6 +324,24 @@ mod tests {
     fn image(n: usize, h: usize, w: usize, seed: u64) -> Tensor<4> {
         let v: Vec<f32> = (0..n * 3 * h * w).map(|i| crate::rng::unit(crate::rng::hash(&[seed, i as u64])) as f32).collect();
         Tensor::<4>::from_data(burn::tensor::TensorData::new(v, [n, 3, h, w]), &dev())
+    }
+
+    #[test]
+    fn convolution_macs_match_pytorch_hooks_and_the_parameter_count() {
+        // Reference MACs at 128 x 128: forward hooks on python/pipeline/models.py's networks in
+        // PyTorch 2.15 (weights x output pixels per Conv2d, x input pixels per ConvTranspose2d).
+        for (arch, macs) in
+            [(Arch::Unet { base: 16 }, 505_937_920), (Arch::Unet { base: 32 }, 2_008_023_040), (Arch::Shallow { width: 32 }, 1_236_271_104)]
+        {
+            let (m, weights) = arch.conv_macs(128, 128);
+            assert_eq!(m, macs, "{}", arch.name());
+            // The rest of the parameters are BatchNorm's (2 per channel) and the biases.
+            let rest = match arch {
+                Arch::Unet { base } => 139 * base + 3,
+                Arch::Shallow { width } => 18 * width + 3,
+            };
+            assert_eq!(Net::new(arch, &dev()).trainable_params(), weights + rest, "{}", arch.name());
+        }
     }
 
     #[test]

@@ -14,6 +14,82 @@ pub struct ModelSpeed {
     /// Our time per patch over PyTorch's (training step; forward of one patch): 1.0 is parity.
     pub train_time_ratio_vs_torch: Option<f64>,
     pub forward_time_ratio_vs_torch: Option<f64>,
+    /// Convolution FLOPs per 128x128 patch (2 per multiply-add): forward; a training step
+    /// counts 3 times that (forward, input gradient, weight gradient).
+    pub forward_gflop_per_patch: f64,
+    /// What that makes per core (FLOP/s over the threads) for training and forward.
+    pub train_gflops_per_core: f64,
+    pub forward_gflops_per_core: f64,
+    /// One core's f32 FMA peak, measured in the same run (see [`fma_peak_gflops`]).
+    pub fma_peak_gflops_per_core: Option<f64>,
+}
+
+/// Accumulators of the peak loop: more than FMA latency x units (4 x 2) keeps every unit busy.
+const PEAK_ACC: usize = 12;
+
+/// One core's f32 fused multiply-add peak, measured: GFLOP/s of a loop of independent FMAs on the
+/// widest vectors this CPU has (AVX-512, else AVX2), best of 5, with the vector width's name.
+/// `None` on other CPUs. It is what gemm's microkernels can at most reach on one core.
+pub fn fma_peak_gflops() -> Option<(f64, &'static str)> {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let iters = 20_000_000;
+        let (width, name) = if is_x86_feature_detected!("avx512f") {
+            (16, "AVX-512")
+        } else if is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
+            (8, "AVX2")
+        } else {
+            return None;
+        };
+        let mut best = 0.0f64;
+        for _ in 0..5 {
+            let t = Instant::now();
+            // SAFETY: the CPU has the features each loop is compiled for (detected above).
+            let v = unsafe {
+                if width == 16 {
+                    fma_loop_512(iters)
+                } else {
+                    fma_loop_256(iters)
+                }
+            };
+            std::hint::black_box(v);
+            best = best.max((iters * PEAK_ACC * width * 2) as f64 / t.elapsed().as_secs_f64() / 1e9);
+        }
+        Some((best, name))
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    None
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+fn fma_loop_512(iters: usize) -> f32 {
+    use std::arch::x86_64::*;
+    let (a, b) = (_mm512_set1_ps(0.999_999), _mm512_set1_ps(1e-7));
+    let mut acc = [_mm512_set1_ps(1.0); PEAK_ACC];
+    for _ in 0..iters {
+        for r in acc.iter_mut() {
+            *r = _mm512_fmadd_ps(*r, a, b);
+        }
+    }
+    _mm512_reduce_add_ps(acc.into_iter().fold(_mm512_setzero_ps(), |s, r| _mm512_add_ps(s, r)))
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+fn fma_loop_256(iters: usize) -> f32 {
+    use std::arch::x86_64::*;
+    let (a, b) = (_mm256_set1_ps(0.999_999), _mm256_set1_ps(1e-7));
+    let mut acc = [_mm256_set1_ps(1.0); PEAK_ACC];
+    for _ in 0..iters {
+        for r in acc.iter_mut() {
+            *r = _mm256_fmadd_ps(*r, a, b);
+        }
+    }
+    let mut out = [0.0f32; 8];
+    // SAFETY: `out` holds the 8 floats the unaligned store writes.
+    unsafe { _mm256_storeu_ps(out.as_mut_ptr(), acc.into_iter().fold(_mm256_setzero_ps(), |s, r| _mm256_add_ps(s, r))) };
+    out.iter().sum()
 }
 
 pub(super) fn bench_data(n: usize, salt: usize) -> crate::model::fast::T4 {
@@ -89,6 +165,10 @@ pub(super) fn time_fast(arch: crate::model::Arch, batch: usize, repeats: usize) 
 pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize, with_burn: bool) -> crate::Result<Vec<ModelSpeed>> {
     let script = torch_script();
     let threads = rayon::current_num_threads();
+    let peak = fma_peak_gflops();
+    if let Some((p, name)) = peak {
+        eprintln!("bench: one core's f32 FMA peak ({name}, measured): {p:.1} GFLOP/s");
+    }
     let mut out = Vec::new();
     for &arch in archs {
         let parameters = crate::model::Net::new(arch, &burn::tensor::Device::flex()).trainable_params();
@@ -114,6 +194,8 @@ pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize, with_bu
             let (step, fwd) = (median(&mut steps), median(&mut fwd));
             let tt = torch_row.as_ref().and_then(|t| t["train_patches_per_s_median"].as_f64());
             let tf = torch_row.as_ref().and_then(|t| t["forward_ms_per_patch_median"].as_f64());
+            let gflop = 2.0 * arch.conv_macs(128, 128).0 as f64 / 1e9;
+            let per_core = |gflop_per_s: f64| gflop_per_s / threads as f64;
             let row = ModelSpeed {
                 model: arch.name(),
                 engine,
@@ -125,6 +207,10 @@ pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize, with_bu
                 torch: torch_row.clone(),
                 train_time_ratio_vs_torch: tt.map(|t| t * step / batch as f64),
                 forward_time_ratio_vs_torch: tf.map(|t| fwd / t),
+                forward_gflop_per_patch: gflop,
+                train_gflops_per_core: per_core(3.0 * gflop * batch as f64 / step),
+                forward_gflops_per_core: per_core(gflop / (fwd / 1e3)),
+                fma_peak_gflops_per_core: peak.map(|p| p.0),
             };
             eprintln!(
                 "bench: {} ({engine}, {threads} threads): {:.2} patches/s training (batch {batch}), forward {:.1} ms per 128x128 patch{}",
@@ -139,6 +225,16 @@ pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize, with_bu
                     ),
                     _ => "; torch not installed, no comparison".into(),
                 }
+            );
+            let share = |g: f64| peak.map_or(String::new(), |(p, _)| format!(", {:.0}% of peak", 100.0 * g / p));
+            eprintln!(
+                "bench: {} ({engine}): {:.1} GFLOP/s per core training{}, {:.1} forward{}{}",
+                row.model,
+                row.train_gflops_per_core,
+                share(row.train_gflops_per_core),
+                row.forward_gflops_per_core,
+                share(row.forward_gflops_per_core),
+                tt.map_or(String::new(), |tt| format!("; PyTorch {:.1} training", per_core(3.0 * gflop * tt)))
             );
             out.push(row);
         }
