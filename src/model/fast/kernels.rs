@@ -92,14 +92,33 @@ pub(super) fn band_rows(k: usize, h: usize, w: usize) -> usize {
     ((1usize << 18) / (k * w).max(1)).clamp(1, h.max(1))
 }
 
-/// The im2col matrix of rows `r0..r1` of one sample `x` (`cin` planes of `h x w`): row
-/// `(ci, ky, kx)` holds `x[ci, y + ky - p, x + kx - p]` (zero outside) for each pixel of the band.
-/// Every value of `col` is written (copied or zeroed), so the buffer is reused without clearing.
+thread_local! {
+    /// Each worker thread's im2col band buffer, kept across layers and steps: a fresh one per
+    /// call was zero-filled every time (3 to 8% of a training step, more with more threads).
+    static COL: std::cell::Cell<Vec<f32>> = const { std::cell::Cell::new(Vec::new()) };
+}
+
+/// Runs `f` with this thread's im2col buffer (taken out for the call, so a nested use gets an
+/// empty one rather than a borrow error).
+pub(super) fn with_col<R>(f: impl FnOnce(&mut Vec<f32>) -> R) -> R {
+    let mut col = COL.with(|c| c.take());
+    let r = f(&mut col);
+    COL.with(|c| c.set(col));
+    r
+}
+
+/// The im2col matrix of rows `r0..r1` of one sample `x` (`cin` planes of `h x w`) in the first
+/// `cin * k * k * (r1 - r0) * w` values of `col`: row `(ci, ky, kx)` holds
+/// `x[ci, y + ky - p, x + kx - p]` (zero outside) for each pixel of the band. Every one of those
+/// values is written (copied or zeroed), so the buffer is reused without clearing; it only grows.
 #[allow(clippy::too_many_arguments)]
 pub(super) fn im2col(x: &[f32], cin: usize, h: usize, w: usize, k: usize, r0: usize, r1: usize, col: &mut Vec<f32>) {
     let p = (k / 2) as isize;
     let npx = (r1 - r0) * w;
-    col.resize(cin * k * k * npx, 0.0);
+    let need = cin * k * k * npx;
+    if col.len() < need {
+        col.resize(need, 0.0);
+    }
     for ci in 0..cin {
         let plane = &x[ci * h * w..(ci + 1) * h * w];
         for ky in 0..k {
@@ -140,7 +159,7 @@ pub fn conv_forward(x: &T4, weight: &[f32], bias: Option<&[f32]>, cout: usize, k
     let len = n * cout * hw;
     let mut d: Vec<f32> = Vec::with_capacity(len);
     let yp = Ptr(d.as_mut_ptr());
-    (0..n * nb).into_par_iter().for_each_init(Vec::new, |col, u| {
+    (0..n * nb).into_par_iter().for_each(|u| {
         // The whole Ptr (Send), not its raw field: closures capture fields separately.
         #[allow(clippy::redundant_locals)]
         let yp = yp;
@@ -154,8 +173,10 @@ pub fn conv_forward(x: &T4, weight: &[f32], bias: Option<&[f32]>, cout: usize, k
             if k == 1 {
                 mm(cout, npx, cin, dst, hw, false, weight.as_ptr(), cin, 1, xs.as_ptr().add(r0 * w), hw, 1);
             } else {
-                im2col(xs, cin, h, w, k, r0, r1, col);
-                mm(cout, npx, kk, dst, hw, false, weight.as_ptr(), kk, 1, col.as_ptr(), npx, 1);
+                with_col(|col| {
+                    im2col(xs, cin, h, w, k, r0, r1, col);
+                    mm(cout, npx, kk, dst, hw, false, weight.as_ptr(), kk, 1, col.as_ptr(), npx, 1);
+                });
             }
             if let Some(b) = bias {
                 for (co, &bv) in b.iter().enumerate() {
@@ -202,7 +223,6 @@ pub fn conv_backward_weight(x: &T4, dy: &T4, k: usize) -> Vec<f32> {
         .into_par_iter()
         .map(|s| {
             let mut g = vec![0.0f32; cout * kk];
-            let mut col = Vec::new();
             let (xs, dys) = (x.sample(s), dy.sample(s));
             let mut r0 = 0;
             while r0 < h {
@@ -213,8 +233,10 @@ pub fn conv_backward_weight(x: &T4, dy: &T4, k: usize) -> Vec<f32> {
                     if k == 1 {
                         mm(cout, kk, npx, g.as_mut_ptr(), kk, true, dys.as_ptr().add(r0 * w), hw, 1, xs.as_ptr().add(r0 * w), 1, hw);
                     } else {
-                        im2col(xs, cin, h, w, k, r0, r1, &mut col);
-                        mm(cout, kk, npx, g.as_mut_ptr(), kk, true, dys.as_ptr().add(r0 * w), hw, 1, col.as_ptr(), 1, npx);
+                        with_col(|col| {
+                            im2col(xs, cin, h, w, k, r0, r1, col);
+                            mm(cout, kk, npx, g.as_mut_ptr(), kk, true, dys.as_ptr().add(r0 * w), hw, 1, col.as_ptr(), 1, npx);
+                        });
                     }
                 }
                 r0 = r1;
