@@ -229,6 +229,7 @@ PY
 # Training shards: windows of N = 7, 9, 11 and 13 through each camera, the same clips, motions,
 # noise and patches for both (the seed depends on N only).
 # NS, PHOTOS and SET render an extra set beside these (the models' second round, models/README.md):
+#   STEP=added bash docs/training-data.sh     # photos/train-added: links to the crops of ADDED_PKGS
 #   STEP=shards NS=9 PHOTOS=$DATA/photos/train-added SET=added SEED=200 bash docs/training-data.sh
 shards() {
   for n in ${NS:-7 9 11 13}; do
@@ -263,8 +264,19 @@ test_clips() {
   done
 }
 
+# The packages added in the second round (148 photographs, 480 crops).
+ADDED_PKGS="gcompris-qt-data tuxpaint-data palapeli-data lxqt-themes"
+added() {
+  mkdir -p "$DATA/photos/train-added"
+  awk -F'\t' -v pkgs="$ADDED_PKGS" 'BEGIN { n = split(pkgs, p, " "); for (i = 1; i <= n; i++) want[p[i]] = 1 }
+    $6 == "train" && ($2 in want) { print $1 }' "$DATA/photos/MANIFEST.tsv" |
+    while read -r f; do ln -sf "../train/$(basename "$f")" "$DATA/photos/train-added/$(basename "$f")"; done
+  echo "added: $(ls "$DATA/photos/train-added" | wc -l) crops -> $DATA/photos/train-added" >&2
+}
+
 case $STEP in
   photos) photos ;;
+  added) added ;;
   shards) shards ;;
   test) test_clips ;;
   all) photos; shards; test_clips ;;
