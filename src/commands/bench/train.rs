@@ -34,25 +34,19 @@ pub fn fma_peak_gflops() -> Option<(f64, &'static str)> {
     #[cfg(target_arch = "x86_64")]
     {
         let iters = 20_000_000;
-        let (width, name) = if is_x86_feature_detected!("avx512f") {
-            (16, "AVX-512")
+        // The loop for the widest vectors this CPU has, their lanes and their name.
+        let (f, width, name): (unsafe fn(usize) -> f32, usize, &str) = if is_x86_feature_detected!("avx512f") {
+            (fma_loop_512, 16, "AVX-512")
         } else if is_x86_feature_detected!("avx2") && is_x86_feature_detected!("fma") {
-            (8, "AVX2")
+            (fma_loop_256, 8, "AVX2")
         } else {
             return None;
         };
         let mut best = 0.0f64;
         for _ in 0..5 {
             let t = Instant::now();
-            // SAFETY: the CPU has the features each loop is compiled for (detected above).
-            let v = unsafe {
-                if width == 16 {
-                    fma_loop_512(iters)
-                } else {
-                    fma_loop_256(iters)
-                }
-            };
-            std::hint::black_box(v);
+            // SAFETY: the CPU has the features `f` is compiled for (detected above).
+            std::hint::black_box(unsafe { f(iters) });
             best = best.max((iters * PEAK_ACC * width * 2) as f64 / t.elapsed().as_secs_f64() / 1e9);
         }
         Some((best, name))

@@ -259,39 +259,26 @@ pub(super) fn sum_in_order(partials: Vec<Vec<f32>>) -> Vec<f32> {
 /// Sum of `t` per channel (over samples and pixels), in f64, fixed order.
 pub(super) fn channel_sums(t: &T4) -> Vec<f32> {
     let hw = t.hw();
-    (0..t.c).map(|ch| (0..t.n).map(|s| lanes_sum(&t.d[(s * t.c + ch) * hw..][..hw], |v| [v])[0]).sum::<f64>() as f32).collect()
+    (0..t.c).map(|ch| (0..t.n).map(|s| lanes_sum(&t.d[(s * t.c + ch) * hw..][..hw], |v| v)).sum::<f64>() as f32).collect()
 }
 
 /// Lanes of f64 accumulators: one sum per lane, added in a fixed order at the end, so the
 /// compiler can vectorise what a single running f64 sum serialises (one add per 4 cycles).
 pub(super) const LANES: usize = 8;
 
-/// `[sum f(x)[0], sum f(x)[1], ...]` over `xs` in f64, with [`LANES`] accumulators per term in a
-/// fixed order (the same bits for any thread count).
+/// `sum f(x)` over `xs` in f64, with [`LANES`] accumulators added in a fixed order at the end
+/// (the same bits for any thread count).
 #[inline]
-pub(super) fn lanes_sum<const T: usize>(xs: &[f32], f: impl Fn(f64) -> [f64; T]) -> [f64; T] {
-    let mut acc = [[0.0f64; LANES]; T];
+pub(super) fn lanes_sum(xs: &[f32], f: impl Fn(f64) -> f64) -> f64 {
+    let mut acc = [0.0f64; LANES];
     let chunks = xs.chunks_exact(LANES);
     let rest = chunks.remainder();
     for c in chunks {
-        for (l, &v) in c.iter().enumerate() {
-            let t = f(v as f64);
-            for k in 0..T {
-                acc[k][l] += t[k];
-            }
+        for (a, &v) in acc.iter_mut().zip(c) {
+            *a += f(v as f64);
         }
     }
-    let mut out = [0.0f64; T];
-    for k in 0..T {
-        out[k] = acc[k].iter().sum::<f64>();
-    }
-    for &v in rest {
-        let t = f(v as f64);
-        for k in 0..T {
-            out[k] += t[k];
-        }
-    }
-    out
+    rest.iter().fold(acc.iter().sum::<f64>(), |s, &v| s + f(v as f64))
 }
 
 /// Runs `f(channel, planes)` for every channel on all cores, where `planes[k][s]` is that

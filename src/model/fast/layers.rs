@@ -130,9 +130,9 @@ impl ConvBnAct {
         let (gamma, beta, eps, slope) = (&self.gamma, &self.beta, self.eps as f64, self.slope);
         let stats = per_channel(c, hw, [&mut xhat, &mut out], |ch, [mut xhs, mut os]| {
             let zp = |s: usize| &z.d[(s * c + ch) * hw..][..hw];
-            let mean = (0..n).map(|s| lanes_sum(zp(s), |v| [v])[0]).sum::<f64>() / m;
+            let mean = (0..n).map(|s| lanes_sum(zp(s), |v| v)).sum::<f64>() / m;
             // Two passes (mean, then squared deviations), not E[z^2] - mean^2, which cancels.
-            let var = (0..n).map(|s| lanes_sum(zp(s), |v| [(v - mean) * (v - mean)])[0]).sum::<f64>() / m;
+            let var = (0..n).map(|s| lanes_sum(zp(s), |v| (v - mean) * (v - mean))).sum::<f64>() / m;
             let inv = 1.0 / (var + eps).sqrt();
             let (g, b, meanf, invf) = (gamma[ch], beta[ch], mean as f32, inv as f32);
             // x-hat and the activation in one pass over z.
