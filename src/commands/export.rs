@@ -1,7 +1,8 @@
 //! `pipeline export`: a trained model as a safetensors file with PyTorch `state_dict` names
-//! ([`crate::model::torch`]).
+//! ([`crate::model::torch`]), or with the names `pipeline` itself writes (a model trained in
+//! PyTorch brought home), optionally in half precision (how the shipped models are stored).
 
-use crate::model::torch::to_torch;
+use crate::model::torch::{from_torch, narrow, to_torch, widen};
 use crate::Error;
 use clap::Args;
 use std::path::PathBuf;
@@ -13,14 +14,19 @@ pub struct ExportArgs {
     /// Output `.safetensors` file.
     #[arg(short, long)]
     pub out: PathBuf,
-    /// Target naming: torch (PyTorch `state_dict` keys of python/pipeline/models.py).
+    /// Target naming: torch (PyTorch `state_dict` keys of python/pipeline/models.py) or burn
+    /// (the names `pipeline train` writes).
     #[arg(long, value_enum, default_value_t = ExportFormat::Torch)]
     pub format: ExportFormat,
+    /// Store the weights as F16 (half the bytes; `pipeline` widens them when it loads them).
+    #[arg(long)]
+    pub half: bool,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 pub enum ExportFormat {
     Torch,
+    Burn,
 }
 
 /// Runs `pipeline export`.
@@ -28,13 +34,30 @@ pub enum ExportFormat {
 /// # Errors
 /// The model cannot be read or is not ours; the output cannot be written.
 pub fn command(a: ExportArgs) -> anyhow::Result<()> {
-    let ExportFormat::Torch = a.format;
     let path = if a.model.is_dir() { crate::model::checkpoint::model_in(&a.model)? } else { a.model.clone() };
+    let name = path.display().to_string();
     let bytes = std::fs::read(&path).map_err(|e| Error::Io { path: path.clone(), cause: e })?;
     // Refuse what `deblur` would refuse (wrong architecture, non-finite weights).
-    crate::model::checkpoint::load_model_bytes(&bytes, &path.display().to_string(), &burn::tensor::Device::flex())?;
-    let (names, out) = to_torch(&bytes, &path.display().to_string())?;
+    crate::model::checkpoint::load_model_bytes(&bytes, &name, &burn::tensor::Device::flex())?;
+    let bytes = widen(&bytes, &name)?.unwrap_or(bytes);
+    let (count, out) = match a.format {
+        ExportFormat::Torch => {
+            // A file with PyTorch names already goes through burn's names, so both kinds export.
+            let burn = from_torch(&bytes, &name)?.unwrap_or(bytes);
+            let (names, out) = to_torch(&burn, &name)?;
+            (names.len(), out)
+        }
+        ExportFormat::Burn => {
+            let out = from_torch(&bytes, &name)?.unwrap_or(bytes);
+            (crate::model::torch::tensor_count(&out, &name)?, out)
+        }
+    };
+    let out = if a.half { narrow(&out, &name)? } else { out };
     crate::io::write_atomic(&a.out, |w| w.write_all(&out))?;
-    eprintln!("{} tensors with PyTorch names -> {}", names.len(), a.out.display());
+    let what = match a.format {
+        ExportFormat::Torch => "PyTorch names",
+        ExportFormat::Burn => "pipeline's names",
+    };
+    eprintln!("{count} tensors with {what}{} -> {}", if a.half { ", F16" } else { "" }, a.out.display());
     Ok(())
 }

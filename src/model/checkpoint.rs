@@ -141,7 +141,10 @@ pub fn model_in(dir: &Path) -> Result<std::path::PathBuf> {
 /// # Errors
 /// As [`load_model`].
 pub fn load_model_bytes(bytes: &[u8], name: &str, device: &Device) -> Result<(Net, Arch)> {
-    // A model with PyTorch names (exported, or fine-tuned in PyTorch) is renamed first.
+    // Half-precision weights (the shipped models) are widened, and a model with PyTorch names
+    // (exported, or fine-tuned in PyTorch) is renamed, first.
+    let wide = crate::model::torch::widen(bytes, name)?;
+    let bytes = wide.as_deref().unwrap_or(bytes);
     let bytes = crate::model::torch::from_torch(bytes, name)?.unwrap_or_else(|| bytes.to_vec());
     let path = Path::new(name);
     let arch = read_arch(&bytes).map_err(|e| Error::File { path: path.to_path_buf(), why: e.to_string() })?;

@@ -89,6 +89,81 @@ fn safetensors_bytes(entries: &[Entry], meta: &serde_json::Map<String, serde_jso
     out
 }
 
+/// The number of tensors in a safetensors file.
+///
+/// # Errors
+/// Not safetensors.
+pub fn tensor_count(bytes: &[u8], name: &str) -> Result<usize> {
+    Ok(read_safetensors(bytes, name)?.0.len())
+}
+
+/// A model file whose half-precision tensors (F16, BF16) are widened to F32, the only type the
+/// networks load; `None` when every tensor is F32 already. Shipped models are stored in F16
+/// (half the bytes; a relative rounding of 2^-11, far below what changes an 8-bit output).
+///
+/// # Errors
+/// Not safetensors, or a tensor whose byte count does not fit its type.
+pub fn widen(bytes: &[u8], name: &str) -> Result<Option<Vec<u8>>> {
+    let Ok((entries, meta)) = read_safetensors(bytes, name) else { return Ok(None) };
+    if entries.iter().all(|e| e.dtype != "F16" && e.dtype != "BF16") {
+        return Ok(None);
+    }
+    let mut out = Vec::with_capacity(entries.len());
+    for e in entries {
+        let is_f16 = match e.dtype.as_str() {
+            "F16" => true,
+            "BF16" => false,
+            _ => {
+                out.push(e);
+                continue;
+            }
+        };
+        if e.data.len() % 2 != 0 {
+            return Err(Error::File { path: name.into(), why: format!("{}: {} bytes of {}", e.name, e.data.len(), e.dtype) });
+        }
+        let data = e
+            .data
+            .chunks_exact(2)
+            .flat_map(|c| {
+                let bits = u16::from_le_bytes([c[0], c[1]]);
+                let v = if is_f16 { half::f16::from_bits(bits).to_f32() } else { half::bf16::from_bits(bits).to_f32() };
+                v.to_le_bytes()
+            })
+            .collect();
+        out.push(Entry { dtype: "F32".into(), data, ..e });
+    }
+    Ok(Some(safetensors_bytes(&out, meta.as_object().unwrap_or(&serde_json::Map::new()))))
+}
+
+/// A model file's F32 tensors rounded to F16 (round to nearest even), for shipping; the loader
+/// widens them back ([`widen`]). `half` is recorded in the metadata.
+///
+/// # Errors
+/// Not safetensors; a weight beyond F16's range (65504), which rounding would make infinite.
+pub fn narrow(bytes: &[u8], name: &str) -> Result<Vec<u8>> {
+    let (entries, meta) = read_safetensors(bytes, name)?;
+    let mut out = Vec::with_capacity(entries.len());
+    for e in entries {
+        if e.dtype != "F32" {
+            out.push(e);
+            continue;
+        }
+        let mut data = Vec::with_capacity(e.data.len() / 2);
+        for c in e.data.chunks_exact(4) {
+            let v = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
+            let h = half::f16::from_f32(v);
+            if h.is_infinite() && v.is_finite() {
+                return Err(Error::File { path: name.into(), why: format!("{} holds {v}, beyond F16's range", e.name) });
+            }
+            data.extend_from_slice(&h.to_bits().to_le_bytes());
+        }
+        out.push(Entry { dtype: "F16".into(), data, ..e });
+    }
+    let mut m = meta.as_object().cloned().unwrap_or_default();
+    m.insert("half".into(), "stored as F16; widened to F32 when loaded".into());
+    Ok(safetensors_bytes(&out, &m))
+}
+
 /// Converts a model file's bytes to PyTorch names; adds each BatchNorm's `num_batches_tracked`.
 ///
 /// # Errors
@@ -218,6 +293,36 @@ mod tests {
         let at = torch.windows(9).position(|w| w == b"outc.bias").unwrap();
         torch[at..at + 9].copy_from_slice(b"outc.zzzz");
         assert!(from_torch(&torch, "renamed").unwrap_err().to_string().contains("outc.zzzz"));
+    }
+
+    #[test]
+    fn half_precision_files_widen_back_within_f16_rounding_and_load() {
+        let src = crate::model::infer::DEFAULT_MODEL;
+        let half = narrow(src, "m").unwrap();
+        assert!(half.len() < src.len() * 6 / 10, "{} bytes of {}", half.len(), src.len());
+        assert!(widen(src, "m").unwrap().is_none(), "an F32 file passes through");
+        let wide = widen(&half, "h").unwrap().expect("F16 widened");
+        let (a, _) = read_safetensors(src, "a").unwrap();
+        let (b, _) = read_safetensors(&wide, "b").unwrap();
+        let f32s = |d: &[u8]| d.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect::<Vec<_>>();
+        let mut worst = 0f32;
+        for (x, y) in a.iter().zip(&b) {
+            assert_eq!((&x.name, &x.shape, "F32"), (&y.name, &y.shape, y.dtype.as_str()));
+            for (u, v) in f32s(&x.data).into_iter().zip(f32s(&y.data)) {
+                // F16 keeps 11 significant bits; below 2^-14 it is subnormal (absolute 2^-24).
+                worst = worst.max((u - v).abs() / u.abs().max(6.1e-5));
+            }
+        }
+        assert!(worst > 0.0 && worst <= 1.0 / 2048.0, "worst relative rounding {worst}");
+        let dev = burn::tensor::Device::flex();
+        let (_, arch) = crate::model::checkpoint::load_model_bytes(&half, "half", &dev).unwrap();
+        assert_eq!(arch, crate::model::Arch::Unet { base: 16 });
+        // A weight beyond F16's range is refused by name rather than stored as infinity.
+        let (mut e, m) = read_safetensors(src, "m").unwrap();
+        e[0].data[..4].copy_from_slice(&1e6f32.to_le_bytes());
+        let big = safetensors_bytes(&e, m.as_object().unwrap());
+        let err = narrow(&big, "big").unwrap_err().to_string();
+        assert!(err.contains(&e[0].name) && err.contains("F16"), "{err}");
     }
 
     #[test]

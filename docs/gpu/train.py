@@ -1,0 +1,309 @@
+"""Trains the U-Net pair (and the shallow model) in PyTorch on a GPU, on shards that `pipeline run
+pipelines/train-data.toml` keeps writing while it trains (docs/gpu/run.sh starts both).
+
+The networks are `python/pipeline/models.py`'s, whose parameter names `pipeline deblur --model` and
+`pipeline eval` read back. Every model sees the same samples in the same order (one index draw per
+step serves them all); the coded and the conventional shards are rendered from the same seeds, so
+they hold the same sharp patches, motions and noise, and differ only in the camera.
+
+    python3 docs/gpu/train.py --coded DIR --conventional DIR --out OUT --until UNIX_TIME [--nets unet32:coded,...]
+
+What it does, as models/README.md describes for the CPU trainer: Huber loss (delta 0.02) on
+encoded values in [0, 1], Adam (eps 1e-8), flips and 90-degree rotations, the last layer zeroed
+(each net starts as the identity), a warm-up then a cosine decay that ends at --until; weights
+kept as an exponential moving average, whose BatchNorm statistics are recomputed at the end over
+50 batches (exact averages, as `validate.bn_batches`). A shard whose name hashes to 0 mod 20 is
+held out for validation (PSNR of input and output, 8-bit). Each model is written as
+OUT/NAME.safetensors (PyTorch names, `arch` in the metadata) every --save-every seconds and at the
+end; OUT/history.csv has the losses; OUT/train.log what happened.
+"""
+
+import argparse
+import csv
+import glob
+import importlib.util
+import io
+import json
+import math
+import os
+import sys
+import tarfile
+import threading
+import time
+import zlib
+
+import numpy as np
+import torch
+from PIL import Image
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+spec = importlib.util.spec_from_file_location("pipeline_models", os.path.join(HERE, "..", "..", "python", "pipeline", "models.py"))
+models = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(models)
+
+
+def log(msg, f=None):
+    line = f"[{time.strftime('%H:%M:%S')}] {msg}"
+    print(line, flush=True)
+    if f:
+        f.write(line + "\n")
+        f.flush()
+
+
+def read_shard(path):
+    """{key: (lq uint8 HWC, gt uint8 HWC)} of one WebDataset shard (key.lq.png, key.gt.png, key.json)."""
+    out = {}
+    with tarfile.open(path) as t:
+        for m in t.getmembers():
+            key, _, ext = m.name.partition(".")
+            if ext not in ("lq.png", "gt.png"):
+                continue
+            img = np.asarray(Image.open(io.BytesIO(t.extractfile(m).read())).convert("RGB"))
+            out.setdefault(key, {})[ext[:2]] = img
+    return {k: (v["lq"], v["gt"]) for k, v in out.items() if "lq" in v and "gt" in v}
+
+
+class Pool:
+    """Samples of both cameras, loaded by a thread as their shards appear (a shard counts once it
+    exists under the same name in both folders). Train and validation stay apart by shard name."""
+
+    def __init__(self, dirs, logf):
+        self.dirs, self.logf = dirs, logf
+        self.seen = set()
+        self.lock = threading.Lock()
+        self.new = {"train": [], "val": []}
+        self.mismatch = 0
+        self.stop = False
+        threading.Thread(target=self.run, daemon=True).start()
+
+    def run(self):
+        while not self.stop:
+            names = [{os.path.relpath(p, d) for p in glob.glob(f"{d}/**/*.tar", recursive=True)} for d in self.dirs]
+            both = sorted(set.intersection(*names) - self.seen)
+            for n in both:
+                try:
+                    shards = [read_shard(os.path.join(d, n)) for d in self.dirs]
+                except Exception as e:  # a shard being replaced: try again next round
+                    log(f"{n}: {e}", self.logf)
+                    continue
+                self.seen.add(n)
+                keys = sorted(set.intersection(*[set(s) for s in shards]))
+                rows = []
+                for k in keys:
+                    gts = [s[k][1] for s in shards]
+                    if any(not np.array_equal(gts[0], g) for g in gts[1:]):
+                        self.mismatch += 1  # the cameras must share the sharp patch
+                        continue
+                    rows.append(np.stack([s[k][0] for s in shards] + [gts[0]]))
+                if rows:
+                    split = "val" if zlib.crc32(os.path.basename(n).encode()) % 20 == 0 else "train"
+                    with self.lock:
+                        self.new[split].append(np.stack(rows))
+            time.sleep(1.0)
+
+    def take(self, split):
+        with self.lock:
+            got, self.new[split] = self.new[split], []
+        return got
+
+
+def huber(x, y, d=0.02):
+    a = (x - y).abs()
+    return torch.where(a < d, 0.5 * a * a, d * (a - 0.5 * d)).mean()
+
+
+def augment(x, g):
+    """The same random flip / 90-degree rotation for the whole batch's lq and gt (dims 3, 4)."""
+    k = int(torch.randint(0, 8, (1,), generator=g))
+    if k & 1:
+        x = x.flip(-1)
+    if k & 2:
+        x = x.flip(-2)
+    if k & 4:
+        x = x.transpose(-1, -2)
+    return x
+
+
+def psnr(a, b):
+    """PSNR in dB of 8-bit images (values in [0, 1], rounded to 8 bits first), per sample."""
+    a = (a.clamp(0, 1) * 255).round()
+    b = (b.clamp(0, 1) * 255).round()
+    mse = ((a - b) ** 2).flatten(1).mean(1).clamp_min(1e-10)
+    return 10 * torch.log10(255.0**2 / mse)
+
+
+def save(net, arch, path, extra):
+    from safetensors.torch import save_file
+
+    sd = {k: v.detach().float().contiguous().cpu() if v.is_floating_point() else v.detach().contiguous().cpu() for k, v in net.state_dict().items()}
+    tmp = path + ".tmp"
+    save_file(sd, tmp, metadata={"format": "pt", "arch": json.dumps(arch), **{k: str(v) for k, v in extra.items()}})
+    os.replace(tmp, path)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--coded", required=True)
+    ap.add_argument("--conventional", required=True)
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--until", type=float, required=True, help="unix time at which training ends (the schedule ends there)")
+    ap.add_argument("--nets", default="unet32:coded,unet32:conventional,unet16:coded,shallow32:coded",
+                    help="NET:CAMERA,...: unetB (base B) or shallowW (width W), on coded or conventional data")
+    ap.add_argument("--max-wait", type=float, default=120.0, help="seconds to wait for the first --min-samples")
+    ap.add_argument("--shallow-init", default="", help="PyTorch-named safetensors to start the shallow model from")
+    ap.add_argument("--batch", type=int, default=64)
+    ap.add_argument("--lr", type=float, default=1e-3)
+    ap.add_argument("--warmup", type=float, default=20.0, help="seconds of linear warm-up")
+    ap.add_argument("--min-samples", type=int, default=2000)
+    ap.add_argument("--save-every", type=float, default=60.0)
+    ap.add_argument("--ema", type=float, default=0.999)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
+    a = ap.parse_args()
+    os.makedirs(a.out, exist_ok=True)
+    logf = open(os.path.join(a.out, "train.log"), "a")
+    dev = torch.device(a.device)
+    torch.manual_seed(a.seed)
+    g = torch.Generator().manual_seed(a.seed)
+    torch.backends.cudnn.benchmark = True
+    torch.backends.cuda.matmul.allow_tf32 = True
+    torch.backends.cudnn.allow_tf32 = True
+    amp = dev.type == "cuda"
+    log(f"device {dev} ({torch.cuda.get_device_name() if amp else 'cpu'}), torch {torch.__version__}", logf)
+
+    specs = []
+    for item in a.nets.split(","):
+        kind, cam = item.split(":")
+        arch = {"type": "unet", "base": int(kind[4:])} if kind.startswith("unet") else {"type": "shallow", "width": int(kind[7:])}
+        specs.append((f"{kind}-{cam}", arch, {"coded": 0, "conventional": 1}[cam]))
+    nets = []
+    for name, arch, cam in specs:
+        net = models.build(arch)
+        last = net.outc if arch["type"] == "unet" else net.out
+        torch.nn.init.zeros_(last.weight)
+        torch.nn.init.zeros_(last.bias)
+        if arch["type"] == "shallow" and a.shallow_init:
+            from safetensors.torch import load_file
+            missing = net.load_state_dict(load_file(a.shallow_init), strict=False)
+            log(f"{name}: started from {a.shallow_init} ({missing})", logf)
+        net = net.to(dev).to(memory_format=torch.channels_last)
+        ema = models.build(arch).to(dev).to(memory_format=torch.channels_last)
+        ema.load_state_dict(net.state_dict())
+        for p in ema.parameters():
+            p.requires_grad_(False)
+        opt = torch.optim.Adam(net.parameters(), lr=a.lr, eps=1e-8)
+        nparams = sum(p.numel() for p in net.parameters())
+        log(f"{name}: {nparams} parameters", logf)
+        nets.append({"name": name, "arch": arch, "cam": cam, "net": net, "ema": ema, "opt": opt, "loss": 0.0, "n": 0,
+                     "ema_p": list(ema.parameters()), "net_p": list(net.parameters()),
+                     "ema_b": list(ema.buffers()), "net_b": list(net.buffers())})
+
+    t_start = time.time()
+    pool = Pool([a.coded, a.conventional], logf)
+    data = torch.empty((0, 3, 3, 128, 128), dtype=torch.uint8, device=dev)  # [n, (coded, conventional, gt), c, h, w]
+    val = torch.empty_like(data)
+    while True:
+        for c in pool.take("train"):
+            data = torch.cat([data, torch.from_numpy(c).permute(0, 1, 4, 2, 3).to(dev)])
+        for c in pool.take("val"):
+            val = torch.cat([val, torch.from_numpy(c).permute(0, 1, 4, 2, 3).to(dev)])
+        if len(data) >= a.min_samples:
+            break
+        if time.time() > min(a.until, t_start + a.max_wait):
+            raise SystemExit(f"only {len(data)} samples after {time.time() - t_start:.0f} s: is the generator running? (its logs)")
+        time.sleep(1)
+    t0 = time.time()
+    span = max(a.until - t0, 1.0)
+    log(f"training from {len(data)} samples ({len(val)} held out); {span:.0f} s until the end of the schedule", logf)
+    hist = open(os.path.join(a.out, "history.csv"), "a", newline="")
+    hw = csv.writer(hist)
+    hw.writerow(["step", "seconds", "samples", "lr"] + [n["name"] for n in nets])
+    step, last_save, last_log = 0, t0, t0
+
+    def write_all(final=False):
+        for n in nets:
+            save(n["ema"], n["arch"], os.path.join(a.out, n["name"] + ".safetensors"),
+                 {"steps": step, "batch": a.batch, "patches": step * a.batch, "samples": len(data), "final": final,
+                  "trained_by": "docs/gpu/train.py (PyTorch %s)" % torch.__version__})
+
+    while True:
+        now = time.time()
+        if now >= a.until:
+            break
+        frac = (now - t0) / span
+        lr = a.lr * min(1.0, (now - t0) / a.warmup) * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * frac)))
+        for c in pool.take("train"):
+            data = torch.cat([data, torch.from_numpy(c).permute(0, 1, 4, 2, 3).to(dev)])
+        for c in pool.take("val"):
+            val = torch.cat([val, torch.from_numpy(c).permute(0, 1, 4, 2, 3).to(dev)])
+        idx = torch.randint(0, len(data), (a.batch,), generator=g).to(dev)
+        batch = augment(data[idx].float() / 255.0, g)  # [b, 3, c, h, w]
+        for n in nets:
+            x = batch[:, n["cam"]].contiguous(memory_format=torch.channels_last)
+            y = batch[:, 2].contiguous(memory_format=torch.channels_last)
+            for pg in n["opt"].param_groups:
+                pg["lr"] = lr
+            with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=amp):
+                out = n["net"](x)
+            loss = huber(out.float(), y)
+            n["opt"].zero_grad(set_to_none=True)
+            loss.backward()
+            n["opt"].step()
+            with torch.no_grad():
+                # Warm-up of the average (as timm's): early steps do not hold on to the init.
+                torch._foreach_lerp_(n["ema_p"], n["net_p"], 1 - min(a.ema, (1 + step) / (10 + step)))
+                torch._foreach_copy_(n["ema_b"], n["net_b"])
+            n["loss"] += loss.detach()
+            n["n"] += 1
+        step += 1
+        if now - last_log >= 10 or step == 1:
+            losses = [float(n["loss"]) / max(n["n"], 1) for n in nets]
+            hw.writerow([step, round(now - t0, 1), len(data), f"{lr:.3g}"] + [f"{v:.6g}" for v in losses])
+            hist.flush()
+            log(f"step {step} ({step * a.batch / max(now - t0, 1e-9):.0f} patches/s per model), {len(data)} samples, lr {lr:.3g}, loss "
+                + " ".join(f"{n['name']} {v:.5f}" for n, v in zip(nets, losses)), logf)
+            for n in nets:
+                n["loss"], n["n"] = 0.0, 0
+            last_log = now
+        if now - last_save >= a.save_every:
+            write_all()
+            last_save = now
+
+    # BatchNorm statistics of the averaged weights: exact means over 50 training batches.
+    for n in nets:
+        ema = n["ema"]
+        for m in ema.modules():
+            if isinstance(m, torch.nn.BatchNorm2d):
+                m.reset_running_stats()
+                m.momentum = None
+        ema.train()
+        with torch.no_grad():
+            gb = torch.Generator().manual_seed(a.seed + 1)
+            for _ in range(50):
+                idx = torch.randint(0, len(data), (a.batch,), generator=gb).to(dev)
+                with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=amp):
+                    ema((data[idx, n["cam"]].float() / 255.0).contiguous(memory_format=torch.channels_last))
+        ema.eval()
+    write_all(final=True)
+    report = {"steps": step, "batch": a.batch, "patches_per_model": step * a.batch, "samples": len(data),
+              "held_out": len(val), "seconds": round(time.time() - t0, 1), "gt_mismatch": pool.mismatch, "val": {}}
+    with torch.no_grad():
+        for n in nets:
+            pin, pout = [], []
+            for i in range(0, len(val), 64):
+                v = val[i:i + 64].float() / 255.0
+                x, y = v[:, n["cam"]].contiguous(memory_format=torch.channels_last), v[:, 2]
+                out = n["ema"](x).float()
+                pin.append(psnr(x, y))
+                pout.append(psnr(out, y))
+            if pin:
+                pi, po = torch.cat(pin).mean().item(), torch.cat(pout).mean().item()
+                report["val"][n["name"]] = {"input_psnr": round(pi, 3), "output_psnr": round(po, 3), "gain": round(po - pi, 3)}
+                log(f"{n['name']}: held out {len(val)} samples: input {pi:.2f} dB -> output {po:.2f} dB ({po - pi:+.2f})", logf)
+    json.dump(report, open(os.path.join(a.out, "report.json"), "w"), indent=1)
+    log(f"done: {step} steps x {a.batch} = {step * a.batch} patches per model from {len(data)} samples", logf)
+    pool.stop = True
+
+
+if __name__ == "__main__":
+    main()
