@@ -7,6 +7,8 @@
 # model's starting weights); nothing is fetched there.
 #
 #   bash docs/gpu/run.sh GPU_DIR OUT SECONDS [NETS]     # e.g. .gpu "$OUT" 500
+#   SEED0=2000 TRAIN_ARGS="--lr 3e-4" bash docs/gpu/run.sh ...   # a second round: GPU_DIR/init holds the
+#                                                   # first round's NAME.safetensors, new seeds give new data
 #   (NETS: docs/gpu/train.py --nets; by default U-Net 32 for each camera, U-Net 16 coded for the
 #   width comparison at equal patches, the shallow model coded)
 #
@@ -45,7 +47,7 @@ gen() {
     local n=${ns[$((p % 4))]} pids=()
     for ((i = 0; i < procs; i++)); do
       RAYON_NUM_THREADS=1 "$G/pipeline" run pipelines/train-data.toml -o "$W/shards/$cam/p$p" --progress never \
-        --shard-index $i --shard-count $procs --set seed=$((1000 + p)) --set transforms.blur.window=$n \
+        --shard-index $i --shard-count $procs --set seed=$((${SEED0:-1000} + p)) --set transforms.blur.window=$n \
         --set sources.stills.frames=$((8 * n)) --set transforms.patches.per_window=6 \
         --set transforms.blur.camera.type=$cam --set sinks.shards.prefix=p$p \
         --set "sources.stills.paths=[\"$W/photos/train\"]" --set "sources.stills.motion.object_paths=[\"$W/objects\"]" &
@@ -63,6 +65,7 @@ trap 'kill $g1 $g2 2>/dev/null; pkill -f "$G/pipeline run" 2>/dev/null; tail -n 
 
 init=()
 [ -f "$G/shallow32-init.safetensors" ] && init=(--shallow-init "$G/shallow32-init.safetensors")
+[ -d "$G/init" ] && init+=(--init "$G/init")  # a second round: each net from the first round's weights
 # The schedule ends 45 s before the deadline: BatchNorm statistics, saving and validation follow.
 PYTHONUNBUFFERED=1 python3 docs/gpu/train.py --coded "$W/shards/phase_coded" --conventional "$W/shards/conventional" \
   --out "$OUT" --until $((until - 45)) --nets "$NETS" "${init[@]}" ${TRAIN_ARGS:-}

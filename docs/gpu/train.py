@@ -151,6 +151,7 @@ def main():
                     help="NET:CAMERA,...: unetB (base B) or shallowW (width W), on coded or conventional data")
     ap.add_argument("--max-wait", type=float, default=120.0, help="seconds to wait for the first --min-samples")
     ap.add_argument("--shallow-init", default="", help="PyTorch-named safetensors to start the shallow model from")
+    ap.add_argument("--init", default="", help="folder of NAME.safetensors (PyTorch names, F32 or F16) to start each net from")
     ap.add_argument("--batch", type=int, default=64)
     ap.add_argument("--lr", type=float, default=1e-3)
     ap.add_argument("--warmup", type=float, default=20.0, help="seconds of linear warm-up")
@@ -186,6 +187,10 @@ def main():
             from safetensors.torch import load_file
             missing = net.load_state_dict(load_file(a.shallow_init), strict=False)
             log(f"{name}: started from {a.shallow_init} ({missing})", logf)
+        if a.init and os.path.exists(os.path.join(a.init, name + ".safetensors")):
+            from safetensors.torch import load_file
+            net.load_state_dict(load_file(os.path.join(a.init, name + ".safetensors")), strict=True)
+            log(f"{name}: started from {a.init}/{name}.safetensors", logf)
         net = net.to(dev).to(memory_format=torch.channels_last)
         ema = models.build(arch).to(dev).to(memory_format=torch.channels_last)
         ema.load_state_dict(net.state_dict())
