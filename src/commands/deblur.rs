@@ -550,7 +550,7 @@ pub struct DeblurArgs {
     /// Output video (.mp4, .mkv, .mov...), image (for one image: its format from the extension) or folder.
     #[arg(short, long)]
     pub out: PathBuf,
-    /// A model written by `pipeline train`; default: the shipped U-Net 16 (coded camera).
+    /// A model written by `pipeline train`; default: the shipped U-Net 32 (coded camera).
     #[arg(long)]
     pub model: Option<PathBuf>,
     /// Tile size in pixels (frames are processed in tiles with blended seams); default 1280 (a 720p frame in one pass; smaller tiles use less memory).

@@ -580,7 +580,7 @@ pub struct EvalArgs {
     /// Output folder.
     #[arg(short, long, default_value = "eval-out")]
     pub out: std::path::PathBuf,
-    /// A model written by `pipeline train`; default: the shipped U-Net 16 (coded camera).
+    /// A model written by `pipeline train`; default: the shipped U-Net 32 (coded camera).
     #[arg(long)]
     pub model: Option<std::path::PathBuf>,
     /// The camera that blurs the test windows (overrides camera.type); use the one the model

@@ -51,7 +51,7 @@ pub struct FigureOptions {
     pub frames: usize,
     /// Travel over the exposure of the fastest dot / the spoke target's rim, pixels.
     pub travel_px: f64,
-    /// Folder of the shipped models (`unet16-coded`, `unet16-conventional`).
+    /// Folder of the shipped models (`unet32-coded`, `unet32-conventional`).
     pub models: PathBuf,
     /// Lucy-Richardson iterations for the parabolic camera.
     pub lr_iterations: usize,
@@ -352,9 +352,9 @@ fn spoke(o: &FigureOptions, out: &Path) -> Result<Vec<Score>> {
         let (img, sigma) = capture(&frames, w, h, &cam, o.sigma, key)?;
         let (method, rec) = match kind {
             CameraKind::Conventional => {
-                ("U-Net 16 (conventional)", crate::model::infer::run_frame(&model("unet16-conventional")?, &img, w, h, tiling))
+                ("U-Net 32 (conventional)", crate::model::infer::run_frame(&model("unet32-conventional")?, &img, w, h, tiling))
             }
-            CameraKind::PhaseCoded => ("U-Net 16 (coded)", crate::model::infer::run_frame(&model("unet16-coded")?, &img, w, h, tiling)),
+            CameraKind::PhaseCoded => ("U-Net 32 (coded)", crate::model::infer::run_frame(&model("unet32-coded")?, &img, w, h, tiling)),
             CameraKind::Flutter => {
                 // The code for motion to the right over the rim's extent, as in the paper.
                 let solver = FlutterSolver::new(w, &cam.weights(o.frames), o.travel_px, Ends::Extend, o.flutter_lambda);
@@ -525,7 +525,7 @@ pub struct FigureArgs {
     /// Scene side in pixels.
     #[arg(long, default_value_t = 192)]
     pub size: usize,
-    /// Folder with the shipped models (unet16-coded, unet16-conventional).
+    /// Folder with the shipped models (unet32-coded, unet32-conventional).
     #[arg(long, default_value = "models")]
     pub models: PathBuf,
     /// Seed of the noise.

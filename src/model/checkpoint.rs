@@ -247,6 +247,6 @@ mod tests {
         let e = read_arch(&file(r#"{"type":"shallow","width":200}"#, &[3, 3])).unwrap_err();
         assert!(e.contains("at least 360000 weights") && e.contains("declares 9"), "{e}");
         assert_eq!(read_arch(&file(r#"{"type":"shallow","width":2}"#, &[4, 9])).unwrap(), Arch::Shallow { width: 2 });
-        assert_eq!(read_arch(crate::model::infer::DEFAULT_MODEL).unwrap(), Arch::Unet { base: 16 });
+        assert_eq!(read_arch(crate::model::infer::DEFAULT_MODEL).unwrap(), Arch::Unet { base: 32 });
     }
 }

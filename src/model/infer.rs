@@ -7,9 +7,9 @@ use crate::Result;
 use burn::tensor::Device;
 use std::path::Path;
 
-/// The model `deblur` uses without `--model`: the shipped U-Net 16 trained on the coded camera
-/// (the best coded model on the held-out test clips, docs/eval.md; 3.7 MB).
-pub const DEFAULT_MODEL: &[u8] = include_bytes!("../../models/unet16-coded/model.safetensors");
+/// The model `deblur` uses without `--model`: the shipped U-Net 32 trained on the coded camera
+/// (the best coded model on the held-out test clips, docs/eval.md; 7.4 MB, stored as F16).
+pub const DEFAULT_MODEL: &[u8] = include_bytes!("../../models/unet32-coded/model.safetensors");
 
 /// Tiling of a frame: square tiles of `tile` pixels overlapping by `overlap`.
 #[derive(Debug, Clone, Copy)]
@@ -133,8 +133,8 @@ pub fn load(model: Option<&Path>) -> Result<(FastNet, String)> {
     let device = Device::flex();
     let (net, name) = match model {
         Some(p) => crate::model::checkpoint::load_model(p, &device).map(|(n, a)| (n, format!("{} ({})", p.display(), a.name())))?,
-        None => crate::model::checkpoint::load_model_bytes(DEFAULT_MODEL, "embedded models/unet16-coded", &device)
-            .map(|(n, a)| (n, format!("models/unet16-coded ({})", a.name())))?,
+        None => crate::model::checkpoint::load_model_bytes(DEFAULT_MODEL, "embedded models/unet32-coded", &device)
+            .map(|(n, a)| (n, format!("models/unet32-coded ({})", a.name())))?,
     };
     Ok((FastNet::from_net(&net), name))
 }

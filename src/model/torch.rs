@@ -240,8 +240,8 @@ pub fn from_torch(bytes: &[u8], name: &str) -> Result<Option<Vec<u8>>> {
             .get(&e.name)
             .cloned()
             .ok_or_else(|| Error::File { path: name.into(), why: format!("{} is not a parameter of {}", e.name, arch.name()) })?;
-        if e.dtype != "F32" {
-            return Err(Error::File { path: name.into(), why: format!("{} is {}, expected F32", e.name, e.dtype) });
+        if !matches!(e.dtype.as_str(), "F32" | "F16" | "BF16") {
+            return Err(Error::File { path: name.into(), why: format!("{} is {}, expected F32 or F16", e.name, e.dtype) });
         }
         out.push(Entry { name: b, ..e });
     }
@@ -278,7 +278,8 @@ mod tests {
     fn every_parameter_has_its_own_torch_name() {
         use crate::model::Arch;
         for (m, arch) in [
-            (crate::model::infer::DEFAULT_MODEL, Arch::Unet { base: 16 }),
+            (crate::model::infer::DEFAULT_MODEL, Arch::Unet { base: 32 }),
+            (include_bytes!("../../models/unet16-coded/model.safetensors").as_slice(), Arch::Unet { base: 16 }),
             (include_bytes!("../../models/shallow32-coded/model.safetensors").as_slice(), Arch::Shallow { width: 32 }),
         ] {
             let (src, _) = read_safetensors(m, "m").unwrap();
@@ -297,7 +298,7 @@ mod tests {
 
     #[test]
     fn half_precision_files_widen_back_within_f16_rounding_and_load() {
-        let src = crate::model::infer::DEFAULT_MODEL;
+        let src = include_bytes!("../../models/unet16-coded/model.safetensors").as_slice();
         let half = narrow(src, "m").unwrap();
         assert!(half.len() < src.len() * 6 / 10, "{} bytes of {}", half.len(), src.len());
         assert!(widen(src, "m").unwrap().is_none(), "an F32 file passes through");
@@ -346,11 +347,11 @@ mod tests {
     #[test]
     fn the_shipped_unet_exports_every_tensor_with_torch_names_and_the_same_data() {
         let (names, bytes) = to_torch(crate::model::infer::DEFAULT_MODEL, "embedded").unwrap();
-        // 100 burn tensors plus one num_batches_tracked per BatchNorm (18 in U-Net 16).
+        // 100 burn tensors plus one num_batches_tracked per BatchNorm (18 in a U-Net).
         assert_eq!(names.len(), 118);
         let find = |n: &str| names.iter().find(|(k, _, _)| k == n).unwrap_or_else(|| panic!("{n} missing"));
-        assert_eq!(find("ups.0.up.weight").1, vec![128, 128, 2, 2]);
-        assert_eq!(find("inc.a.0.weight").1, vec![16, 3, 3, 3]);
+        assert_eq!(find("ups.0.up.weight").1, vec![256, 256, 2, 2]);
+        assert_eq!(find("inc.a.0.weight").1, vec![32, 3, 3, 3]);
         assert_eq!(find("inc.a.1.num_batches_tracked").2, "I64");
         assert_eq!(find("outc.bias").1, vec![3]);
         assert!(names.iter().all(|(k, _, _)| !k.contains("gamma") && !k.contains("beta") && !k.starts_with("Unet")));
