@@ -75,7 +75,7 @@ pub enum Command {
     /// Shallow), for fine-tuning or deployment in PyTorch.
     #[cfg(feature = "train")]
     #[command(
-        after_help = "Examples:\n  pipeline export models/unet16-coded -o unet16-coded.pt.safetensors\n\nIn Python: model = UNet(16); model.load_state_dict(safetensors.torch.load_file(\"unet16-coded.pt.safetensors\"))"
+        after_help = "Examples:\n  pipeline export models/unet32-coded -o unet32-coded.pt.safetensors\n  pipeline export trained-in-torch.safetensors --format burn --half -o models/mine/model.safetensors\n\nIn Python: model = UNet(32); model.load_state_dict(safetensors.torch.load_file(\"unet32-coded.pt.safetensors\"))"
     )]
     Export(crate::commands::export::ExportArgs),
     /// Measure speed (medians of repeats); not part of the tests.
