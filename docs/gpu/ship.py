@@ -3,6 +3,7 @@ docs/gpu/run.sh that trained it (the weights themselves: `pipeline export ROUND/
 --format burn --half -o models/NAME/model.safetensors`).
 
     python3 docs/gpu/ship.py NAME OUT_DIR ROUND_DIR [ROUND_DIR...]     # curves need matplotlib
+    INIT="models/shallow32-coded at commit 9c67bda" python3 docs/gpu/ship.py ...   # what round 1 started from
 """
 
 import csv
@@ -12,7 +13,8 @@ import sys
 
 name, out, rounds = sys.argv[1], sys.argv[2], sys.argv[3:]
 os.makedirs(out, exist_ok=True)
-report = {"model": name, "trained_by": "docs/gpu/train.py via docs/gpu/run.sh (PyTorch, one NVIDIA H200)", "rounds": []}
+report = {"model": name, "trained_by": "docs/gpu/train.py via docs/gpu/run.sh (PyTorch, one NVIDIA H200)",
+          "init": os.environ.get("INIT", "from scratch (the last layer zeroed: the identity)"), "rounds": []}
 rows, offset = [], 0
 for i, d in enumerate(rounds):
     r = json.load(open(os.path.join(d, "report.json")))
