@@ -13,7 +13,9 @@ import sys
 
 name, out, rounds = sys.argv[1], sys.argv[2], sys.argv[3:]
 os.makedirs(out, exist_ok=True)
-report = {"model": name, "trained_by": "docs/gpu/train.py via docs/gpu/run.sh (PyTorch, one NVIDIA H200)",
+kind = name.split("-")[0]
+arch = f"unet-{kind[4:]}" if kind.startswith("unet") else f"shallow-{kind[7:]}"  # as `pipeline` names it
+report = {"model": name, "arch": arch, "trained_by": "docs/gpu/train.py via docs/gpu/run.sh (PyTorch, one NVIDIA H200)",
           "init": os.environ.get("INIT", "from scratch (the last layer zeroed: the identity)"), "rounds": []}
 rows, offset = [], 0
 for i, d in enumerate(rounds):
