@@ -9,6 +9,9 @@
 #   shallow32-init.safetensors   the shipped shallow model in PyTorch names (`pipeline export`)
 #
 #   bash docs/gpu/prepare.sh [GPU_DIR=.gpu] [DATA=../data]
+#   EVERY=2 bash docs/gpu/prepare.sh ...              # every other crop: with the shipped models in
+#                                                   # the repository (30 MB) the whole set no longer fits
+#                                                   # a call's 64 MiB; run.sh's --init models reads them there
 #   bash docs/gpu/run.sh .gpu "$OUT" 470 32            # then, on the GPU machine
 set -euo pipefail
 cd "$(dirname "$0")/../.."
@@ -25,7 +28,7 @@ mkdir -p "$G/pack/objects"
 import glob, os, sys
 from PIL import Image
 data, pack = sys.argv[1:]
-for f in sorted(glob.glob(f"{data}/photos/train/*.png")):
+for f in sorted(glob.glob(f"{data}/photos/train/*.png"))[::int(os.environ.get("EVERY", "1"))]:
     out = os.path.join(pack, "photos/train", os.path.basename(f)[:-4] + ".jpg")
     Image.open(f).convert("RGB").save(out, "JPEG", quality=93, subsampling=0)
 # Cut-outs at most 160 px on a side, above the largest the stills source draws them at (a 288 px

@@ -107,6 +107,39 @@ class Pool:
         return got
 
 
+def torch_name(burn):
+    """pipeline's parameter name -> python/pipeline/models.py's (the rules of src/model/torch.rs's
+    torch_name): `Unet.down1.conv.a.conv.weight` -> `downs.0.a.0.weight`, `bn.gamma` -> `1.weight`."""
+    net, _, rest = burn.partition(".")
+    parts, out, i = rest.split("."), [], 0
+    while i < len(parts):
+        p, nxt = parts[i], parts[i + 1] if i + 1 < len(parts) else None
+        if net == "Unet" and p.startswith("down"):
+            out.append(f"downs.{int(p[4:]) - 1}")
+            i += nxt == "conv"
+        elif net == "Unet" and p.startswith("up") and p[2:].isdigit():
+            out.append(f"ups.{int(p[2:]) - 1}")
+        elif p == "conv" and nxt in ("weight", "bias"):
+            out.append("0")
+        else:
+            out.append({"bn": "1", "gamma": "weight", "beta": "bias"}.get(p, p))
+        i += 1
+    return ".".join(out)
+
+
+def load_init(net, path):
+    """Weights from a safetensors file with PyTorch names or with pipeline's own (a shipped
+    models/NAME/model.safetensors), F32 or F16."""
+    from safetensors.torch import load_file
+
+    sd = load_file(path)
+    if any(k.startswith(("Unet.", "Shallow.")) for k in sd):
+        sd = {torch_name(k): v for k, v in sd.items()}
+    missing, unexpected = net.load_state_dict(sd, strict=False)
+    if unexpected or any(not k.endswith("num_batches_tracked") for k in missing):
+        raise SystemExit(f"{path}: does not fit {type(net).__name__} (missing {missing}, unexpected {unexpected})")
+
+
 def huber(x, y, d=0.02):
     a = (x - y).abs()
     return torch.where(a < d, 0.5 * a * a, d * (a - 0.5 * d)).mean()
@@ -151,7 +184,7 @@ def main():
                     help="NET:CAMERA,...: unetB (base B) or shallowW (width W), on coded or conventional data")
     ap.add_argument("--max-wait", type=float, default=120.0, help="seconds to wait for the first --min-samples")
     ap.add_argument("--shallow-init", default="", help="PyTorch-named safetensors to start the shallow model from")
-    ap.add_argument("--init", default="", help="folder of NAME.safetensors (PyTorch names, F32 or F16) to start each net from")
+    ap.add_argument("--init", default="", help="folder of NAME.safetensors or NAME/model.safetensors (models/ itself) to start each net from")
     ap.add_argument("--batch", type=int, default=64)
     ap.add_argument("--lr", type=float, default=1e-3)
     ap.add_argument("--warmup", type=float, default=20.0, help="seconds of linear warm-up")
@@ -184,13 +217,13 @@ def main():
         torch.nn.init.zeros_(last.weight)
         torch.nn.init.zeros_(last.bias)
         if arch["type"] == "shallow" and a.shallow_init:
-            from safetensors.torch import load_file
-            missing = net.load_state_dict(load_file(a.shallow_init), strict=False)
-            log(f"{name}: started from {a.shallow_init} ({missing})", logf)
-        if a.init and os.path.exists(os.path.join(a.init, name + ".safetensors")):
-            from safetensors.torch import load_file
-            net.load_state_dict(load_file(os.path.join(a.init, name + ".safetensors")), strict=True)
-            log(f"{name}: started from {a.init}/{name}.safetensors", logf)
+            load_init(net, a.shallow_init)
+            log(f"{name}: started from {a.shallow_init}", logf)
+        for init in [os.path.join(a.init, name + ".safetensors"), os.path.join(a.init, name, "model.safetensors")] if a.init else []:
+            if os.path.exists(init):
+                load_init(net, init)
+                log(f"{name}: started from {init}", logf)
+                break
         net = net.to(dev).to(memory_format=torch.channels_last)
         ema = models.build(arch).to(dev).to(memory_format=torch.channels_last)
         ema.load_state_dict(net.state_dict())
