@@ -2,7 +2,7 @@
 //! ([`crate::model::torch`]), or with the names `pipeline` itself writes (a model trained in
 //! PyTorch brought home), optionally in half precision (how the shipped models are stored).
 
-use crate::model::torch::{from_torch, narrow, to_torch, widen};
+use crate::model::torch::{canonical, narrow, read_safetensors, to_torch};
 use crate::Error;
 use clap::Args;
 use std::path::PathBuf;
@@ -37,27 +37,19 @@ pub fn command(a: ExportArgs) -> anyhow::Result<()> {
     let path = if a.model.is_dir() { crate::model::checkpoint::model_in(&a.model)? } else { a.model.clone() };
     let name = path.display().to_string();
     let bytes = std::fs::read(&path).map_err(|e| Error::Io { path: path.clone(), cause: e })?;
-    // Refuse what `deblur` would refuse (wrong architecture, non-finite weights).
-    crate::model::checkpoint::load_model_bytes(&bytes, &name, &burn::tensor::Device::flex())?;
-    let bytes = widen(&bytes, &name)?.unwrap_or(bytes);
-    let (count, out) = match a.format {
+    // F32 with pipeline's names, whatever the file holds; refuse what `deblur` would refuse
+    // (wrong architecture, non-finite weights).
+    let native = canonical(&bytes, &name)?;
+    crate::model::checkpoint::load_model_bytes(&native, &name, &burn::tensor::Device::flex())?;
+    let (count, out, what) = match a.format {
         ExportFormat::Torch => {
-            // A file with PyTorch names already goes through burn's names, so both kinds export.
-            let burn = from_torch(&bytes, &name)?.unwrap_or(bytes);
-            let (names, out) = to_torch(&burn, &name)?;
-            (names.len(), out)
+            let (names, out) = to_torch(&native, &name)?;
+            (names.len(), out, "PyTorch names")
         }
-        ExportFormat::Burn => {
-            let out = from_torch(&bytes, &name)?.unwrap_or(bytes);
-            (crate::model::torch::tensor_count(&out, &name)?, out)
-        }
+        ExportFormat::Burn => (read_safetensors(&native, &name)?.0.len(), native, "pipeline's names"),
     };
     let out = if a.half { narrow(&out, &name)? } else { out };
     crate::io::write_atomic(&a.out, |w| w.write_all(&out))?;
-    let what = match a.format {
-        ExportFormat::Torch => "PyTorch names",
-        ExportFormat::Burn => "pipeline's names",
-    };
     eprintln!("{count} tensors with {what}{} -> {}", if a.half { ", F16" } else { "" }, a.out.display());
     Ok(())
 }

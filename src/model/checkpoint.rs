@@ -143,9 +143,7 @@ pub fn model_in(dir: &Path) -> Result<std::path::PathBuf> {
 pub fn load_model_bytes(bytes: &[u8], name: &str, device: &Device) -> Result<(Net, Arch)> {
     // Half-precision weights (the shipped models) are widened, and a model with PyTorch names
     // (exported, or fine-tuned in PyTorch) is renamed, first.
-    let wide = crate::model::torch::widen(bytes, name)?;
-    let bytes = wide.as_deref().unwrap_or(bytes);
-    let bytes = crate::model::torch::from_torch(bytes, name)?.unwrap_or_else(|| bytes.to_vec());
+    let bytes = crate::model::torch::canonical(bytes, name)?;
     let path = Path::new(name);
     let arch = read_arch(&bytes).map_err(|e| Error::File { path: path.to_path_buf(), why: e.to_string() })?;
     let mut net = Net::new(arch, device);

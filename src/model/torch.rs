@@ -89,12 +89,15 @@ fn safetensors_bytes(entries: &[Entry], meta: &serde_json::Map<String, serde_jso
     out
 }
 
-/// The number of tensors in a safetensors file.
+/// A model file as `pipeline` loads it: F32 with its own (burn's) parameter names, whatever the
+/// file holds (F16 or BF16 weights, PyTorch names); the bytes unchanged when they already are.
 ///
 /// # Errors
-/// Not safetensors.
-pub fn tensor_count(bytes: &[u8], name: &str) -> Result<usize> {
-    Ok(read_safetensors(bytes, name)?.0.len())
+/// As [`widen`] and [`from_torch`].
+pub fn canonical(bytes: &[u8], name: &str) -> Result<Vec<u8>> {
+    let wide = widen(bytes, name)?;
+    let bytes = wide.as_deref().unwrap_or(bytes);
+    Ok(from_torch(bytes, name)?.unwrap_or_else(|| bytes.to_vec()))
 }
 
 /// A model file whose half-precision tensors (F16, BF16) are widened to F32, the only type the
