@@ -6,7 +6,8 @@
 #   data.tar    the training crops that docs/training-data.sh prepared, as JPEG (quality 93, no
 #               chroma subsampling: a quarter of the PNG's size, so the whole set fits the 64 MiB a
 #               call may carry; run.sh turns them back into PNG there), and the cut-outs (PNG)
-#   shallow32-init.safetensors   the shipped shallow model in PyTorch names (`pipeline export`)
+#   init/shallow32-coded.safetensors   the shipped shallow model, which round 1 fine-tunes
+#               (run.sh starts every net named in init/ from its file, the rest from scratch)
 #
 #   bash docs/gpu/prepare.sh [GPU_DIR=.gpu] [DATA=../data]
 #   EVERY=2 bash docs/gpu/prepare.sh ...              # every other crop: with the shipped models in
@@ -21,7 +22,8 @@ mkdir -p "$G"
 cargo build --release --no-default-features --target-dir target/no-ffmpeg --bin pipeline
 cp target/no-ffmpeg/release/pipeline "$G/pipeline"
 strip "$G/pipeline"
-target/release/pipeline export models/shallow32-coded -o "$G/shallow32-init.safetensors"
+mkdir -p "$G/init"
+target/release/pipeline export models/shallow32-coded -o "$G/init/shallow32-coded.safetensors"
 rm -rf "$G/pack" && mkdir -p "$G/pack/photos/train"
 mkdir -p "$G/pack/objects"
 "${PYTHON:-.venv/bin/python}" - "$DATA" "$G/pack" <<'PY'

@@ -3,12 +3,13 @@
 # training shards with `pipeline run pipelines/train-data.toml` (both cameras from the same seeds,
 # one pass per seed over every photograph, N cycling 9, 7, 11, 13) while docs/gpu/train.py trains
 # on what has been written so far. Everything it needs travels in GPU_DIR (docs/gpu/prepare.sh
-# makes it here: a `pipeline` built without FFmpeg, the photographs and cut-outs, the shallow
-# model's starting weights); nothing is fetched there.
+# makes it here: a `pipeline` built without FFmpeg, the photographs and cut-outs, and in init/
+# the weights of the nets that do not start from scratch); nothing is fetched there.
 #
 #   bash docs/gpu/run.sh GPU_DIR OUT SECONDS [NETS]     # e.g. .gpu "$OUT" 500
 #   SEED0=2000 TRAIN_ARGS="--lr 3e-4" bash docs/gpu/run.sh ...   # a second round: GPU_DIR/init holds the
 #                                                   # first round's NAME.safetensors, new seeds give new data
+#   SEED0=3000 TRAIN_ARGS="--init models" ...       # or start from the shipped models (they travel with the tree)
 #   (NETS: docs/gpu/train.py --nets; by default U-Net 32 for each camera, U-Net 16 coded for the
 #   width comparison at equal patches, the shallow model coded)
 #
@@ -68,8 +69,7 @@ g2=$!
 trap 'kill $g1 $g2 2>/dev/null; pkill -f "$G/pipeline run" 2>/dev/null; tail -n 4 "$W/gen-coded.log" "$W/gen-conventional.log"' EXIT
 
 init=()
-[ -f "$G/shallow32-init.safetensors" ] && init=(--shallow-init "$G/shallow32-init.safetensors")
-[ -d "$G/init" ] && init+=(--init "$G/init")  # a second round: each net from the first round's weights
+[ -d "$G/init" ] && init=(--init "$G/init")  # NAME.safetensors: the nets that do not start from scratch
 # The schedule ends 45 s before the deadline: BatchNorm statistics, saving and validation follow.
 PYTHONUNBUFFERED=1 python3 docs/gpu/train.py --coded "$W/shards/phase_coded" --conventional "$W/shards/conventional" \
   --out "$OUT" --until $((until - 45)) --nets "$NETS" "${init[@]}" ${TRAIN_ARGS:-}

@@ -140,6 +140,31 @@ def load_init(net, path):
         raise SystemExit(f"{path}: does not fit {type(net).__name__} (missing {missing}, unexpected {unexpected})")
 
 
+class Samples:
+    """The samples on the device, [n, (coded, conventional, gt), c, h, w] uint8, in one buffer
+    that doubles when full (a torch.cat per new shard would copy every earlier sample again)."""
+
+    def __init__(self, dev):
+        self.buf = torch.empty((0, 3, 3, 128, 128), dtype=torch.uint8, device=dev)
+        self.n = 0
+
+    def add(self, chunks):
+        for c in chunks:
+            t = torch.from_numpy(c).permute(0, 1, 4, 2, 3)
+            if self.n + len(t) > len(self.buf):
+                grown = self.buf.new_empty((max(2 * len(self.buf), self.n + len(t), 1024), *self.buf.shape[1:]))
+                grown[:self.n] = self.buf[:self.n]
+                self.buf = grown
+            self.buf[self.n:self.n + len(t)] = t.to(self.buf.device)
+            self.n += len(t)
+
+    def __len__(self):
+        return self.n
+
+    def __getitem__(self, i):
+        return self.buf[:self.n][i]
+
+
 def huber(x, y, d=0.02):
     a = (x - y).abs()
     return torch.where(a < d, 0.5 * a * a, d * (a - 0.5 * d)).mean()
@@ -183,7 +208,6 @@ def main():
     ap.add_argument("--nets", default="unet32:coded,unet32:conventional,unet16:coded,shallow32:coded",
                     help="NET:CAMERA,...: unetB (base B) or shallowW (width W), on coded or conventional data")
     ap.add_argument("--max-wait", type=float, default=120.0, help="seconds to wait for the first --min-samples")
-    ap.add_argument("--shallow-init", default="", help="PyTorch-named safetensors to start the shallow model from")
     ap.add_argument("--init", default="", help="folder of NAME.safetensors or NAME/model.safetensors (models/ itself) to start each net from")
     ap.add_argument("--batch", type=int, default=64)
     ap.add_argument("--lr", type=float, default=1e-3)
@@ -216,9 +240,6 @@ def main():
         last = net.outc if arch["type"] == "unet" else net.out
         torch.nn.init.zeros_(last.weight)
         torch.nn.init.zeros_(last.bias)
-        if arch["type"] == "shallow" and a.shallow_init:
-            load_init(net, a.shallow_init)
-            log(f"{name}: started from {a.shallow_init}", logf)
         for init in [os.path.join(a.init, name + ".safetensors"), os.path.join(a.init, name, "model.safetensors")] if a.init else []:
             if os.path.exists(init):
                 load_init(net, init)
@@ -238,13 +259,14 @@ def main():
 
     t_start = time.time()
     pool = Pool([a.coded, a.conventional], logf)
-    data = torch.empty((0, 3, 3, 128, 128), dtype=torch.uint8, device=dev)  # [n, (coded, conventional, gt), c, h, w]
-    val = torch.empty_like(data)
+    data, val = Samples(dev), Samples(dev)
+
+    def absorb():
+        data.add(pool.take("train"))
+        val.add(pool.take("val"))
+
     while True:
-        for c in pool.take("train"):
-            data = torch.cat([data, torch.from_numpy(c).permute(0, 1, 4, 2, 3).to(dev)])
-        for c in pool.take("val"):
-            val = torch.cat([val, torch.from_numpy(c).permute(0, 1, 4, 2, 3).to(dev)])
+        absorb()
         if len(data) >= a.min_samples:
             break
         if time.time() > min(a.until, t_start + a.max_wait):
@@ -270,10 +292,7 @@ def main():
             break
         frac = (now - t0) / span
         lr = a.lr * min(1.0, (now - t0) / a.warmup) * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * frac)))
-        for c in pool.take("train"):
-            data = torch.cat([data, torch.from_numpy(c).permute(0, 1, 4, 2, 3).to(dev)])
-        for c in pool.take("val"):
-            val = torch.cat([val, torch.from_numpy(c).permute(0, 1, 4, 2, 3).to(dev)])
+        absorb()
         idx = torch.randint(0, len(data), (a.batch,), generator=g).to(dev)
         batch = augment(data[idx].float() / 255.0, g)  # [b, 3, c, h, w]
         for n in nets:
