@@ -26,7 +26,6 @@ import io
 import json
 import math
 import os
-import sys
 import tarfile
 import threading
 import time
