@@ -141,16 +141,40 @@ impl FftConv {
         let (hp, wp, wc) = (self.hp, self.wp, self.wc);
         assert_eq!(img.len(), hp * wp);
         assert_eq!(out.len(), hp * wc);
-        let mut strip = std::mem::take(&mut self.rows);
         for y0 in (0..hp).step_by(STRIP) {
             let n = STRIP.min(hp - y0);
-            for (row, spec) in img[y0 * wp..(y0 + n) * wp].chunks_exact_mut(wp).zip(strip.chunks_exact_mut(wc)) {
-                self.r2c.process_with_scratch(row, spec, &mut self.scratch).expect("r2c sizes match");
-            }
-            rows_to_columns(&strip[..n * wc], out, wc, hp, y0);
+            self.forward_rows(&mut img[y0 * wp..(y0 + n) * wp], out, y0);
         }
+        self.columns(out, false);
+    }
+
+    /// Complex values per row spectrum (`wp / 2 + 1`): the number of columns of the transposed
+    /// layout.
+    pub fn wc(&self) -> usize {
+        self.wc
+    }
+
+    /// The row half of [`FftConv::forward`] for at most [`STRIP`] image rows starting at row
+    /// `y0`: their real transforms, scattered into rows `y0..` of every column of `out`
+    /// (transposed layout, `wc` columns of `hp`). `rows` is used as scratch.
+    pub fn forward_rows(&mut self, rows: &mut [f32], out: &mut [Complex32], y0: usize) {
+        let (hp, wp, wc) = (self.hp, self.wp, self.wc);
+        let n = rows.len() / wp;
+        assert!(n * wp == rows.len() && n <= STRIP && y0 + n <= hp && out.len() == hp * wc);
+        let mut strip = std::mem::take(&mut self.rows);
+        for (row, spec) in rows.chunks_exact_mut(wp).zip(strip.chunks_exact_mut(wc)) {
+            self.r2c.process_with_scratch(row, spec, &mut self.scratch).expect("r2c sizes match");
+        }
+        rows_to_columns(&strip[..n * wc], out, wc, hp, y0);
         self.rows = strip;
-        self.col_fwd.process_with_scratch(out, &mut self.scratch);
+    }
+
+    /// The column transforms (forward, or unnormalised inverse) of whole columns of `hp`
+    /// values, in place: `cols` holds any number of them.
+    pub fn columns(&mut self, cols: &mut [Complex32], inverse: bool) {
+        assert!(cols.len().is_multiple_of(self.hp));
+        let plan = if inverse { &self.col_inv } else { &self.col_fwd };
+        plan.process_with_scratch(cols, &mut self.scratch);
     }
 
     /// Spectrum of a centred `(2h + 1)^2` kernel (row-major, `kernel.len()` a square) for this size.
@@ -202,22 +226,33 @@ impl FftConv {
     pub fn inverse(&mut self, spec: &mut [Complex32], out: &mut [f32]) {
         let (hp, wp, wc) = (self.hp, self.wp, self.wc);
         assert_eq!(spec.len(), hp * wc);
-        self.col_inv.process_with_scratch(spec, &mut self.scratch);
-        let norm = 1.0 / (hp * wp) as f32;
-        // Strips of rows gathered from the columns, then the row transforms (as `forward`).
-        let mut strip = std::mem::take(&mut self.rows);
+        assert_eq!(out.len(), hp * wp);
+        self.columns(spec, true);
         for y0 in (0..hp).step_by(STRIP) {
             let n = STRIP.min(hp - y0);
-            columns_to_rows(spec, &mut strip[..n * wc], wc, hp, y0);
-            for (row, o) in strip.chunks_exact_mut(wc).zip(out[y0 * wp..(y0 + n) * wp].chunks_exact_mut(wp)) {
-                // A real signal's DC and (even-length) Nyquist bins are real.
-                row[0].im = 0.0;
-                if wp % 2 == 0 {
-                    row[wc - 1].im = 0.0;
-                }
-                self.c2r.process_with_scratch(row, o, &mut self.scratch).expect("c2r sizes match");
-                o.iter_mut().for_each(|v| *v *= norm);
+            self.inverse_rows(spec, y0, &mut out[y0 * wp..(y0 + n) * wp]);
+        }
+    }
+
+    /// The row half of [`FftConv::inverse`] for at most [`STRIP`] rows from `y0`, of a spectrum
+    /// whose columns are already inverse-transformed ([`FftConv::columns`]): rows gathered
+    /// from the columns, then the normalised real inverse of each into `out` (rows of `wp`).
+    /// Only the rows asked for are transformed; `spec` is only read.
+    pub fn inverse_rows(&mut self, spec: &[Complex32], y0: usize, out: &mut [f32]) {
+        let (hp, wp, wc) = (self.hp, self.wp, self.wc);
+        let n = out.len() / wp;
+        assert!(n * wp == out.len() && n <= STRIP && y0 + n <= hp && spec.len() == hp * wc);
+        let norm = 1.0 / (hp * wp) as f32;
+        let mut strip = std::mem::take(&mut self.rows);
+        columns_to_rows(spec, &mut strip[..n * wc], wc, hp, y0);
+        for (row, o) in strip.chunks_exact_mut(wc).zip(out.chunks_exact_mut(wp)) {
+            // A real signal's DC and (even-length) Nyquist bins are real.
+            row[0].im = 0.0;
+            if wp % 2 == 0 {
+                row[wc - 1].im = 0.0;
             }
+            self.c2r.process_with_scratch(row, o, &mut self.scratch).expect("c2r sizes match");
+            o.iter_mut().for_each(|v| *v *= norm);
         }
         self.rows = strip;
     }
@@ -225,7 +260,7 @@ impl FftConv {
 
 /// Rows per strip in [`FftConv::forward`] and [`FftConv::inverse`]: 8 complex values are one
 /// 64-byte cache line of a column.
-const STRIP: usize = 8;
+pub const STRIP: usize = 8;
 
 /// Scatters a strip of `n` row spectra (image rows `y0..y0 + n`, `wc` values each) into the
 /// transposed layout: `out[j * hp + y0 + i] = strip[i * wc + j]`.

@@ -3,7 +3,7 @@
 //! and one inverse per channel. Borders are mirrored. Whole frames, regions, or patches plus the
 //! kernel margin (the same pixels as blurring the whole frame and cropping).
 use crate::frame::{Cols, Frame, PREFETCH_ROWS};
-use crate::optics::fft::{fast_size, reflect, FftConv};
+use crate::optics::fft::{fast_size, reflect, FftConv, STRIP};
 use crate::optics::lowrank::{factorise_within, LowRank};
 use crate::optics::{Camera, SubframeKernel};
 use num_complex::Complex32;
@@ -34,8 +34,8 @@ pub struct Blurrer {
     convs: HashMap<(usize, usize), Vec<Mutex<FftConv>>>,
     /// Reused buffers per padded size.
     work: HashMap<(usize, usize), Workspace>,
-    /// Per-worker buffers for patch mode.
-    patch_work: HashMap<(usize, usize), Vec<Mutex<Workspace>>>,
+    /// Per-worker buffers of tiles and patches (one worker each).
+    patch_work: HashMap<(usize, usize), Vec<Mutex<TileWork>>>,
 }
 
 /// Buffers kept between windows: no page faults on the hot path.
@@ -206,11 +206,12 @@ impl Blurrer {
         let spectra = self.prepare(hp, wp);
         let ranks = self.ranks();
         let threads = self.threads;
-        let pool = self
-            .patch_work
-            .entry((hp, wp))
-            .or_insert_with(|| (0..threads).map(|_| Mutex::new(Blurrer::workspace(ranks, hp, wp))).collect());
         let convs = &self.convs[&(hp, wp)];
+        let most = ranks.into_iter().max().unwrap_or(0);
+        let pool = self.patch_work.entry((hp, wp)).or_insert_with(|| {
+            let conv = convs[0].lock().expect("conv lock");
+            (0..threads).map(|_| Mutex::new(TileWork::new(most, &conv))).collect()
+        });
         let factors = &self.factors;
         // Whole rectangles per worker: each blurs its own with its own plan and buffers.
         install(&self.pool, || {
@@ -218,9 +219,9 @@ impl Blurrer {
             rects.par_iter().enumerate().for_each(|(k, &(x, y, rw, rh))| {
                 let i = rayon::current_thread_index().unwrap_or(0) % pool.len();
                 let planes = {
-                    let mut ws = pool[i].lock().expect("workspace");
-                    let one = std::slice::from_ref(&convs[i % convs.len()]);
-                    blur_core(factors, &spectra, one, &mut ws, frames, m, (x as isize, y as isize, rw, rh))
+                    let mut tw = pool[i].lock().expect("workspace");
+                    let mut conv = convs[i % convs.len()].lock().expect("conv lock");
+                    blur_tile(factors, &spectra, &mut conv, &mut tw, frames, m, (x as isize, y as isize, rw, rh))
                 };
                 emit(k, planes);
             })
@@ -289,7 +290,9 @@ fn worker(convs: &[Mutex<FftConv>]) -> &Mutex<FftConv> {
 }
 
 /// The three phases on one region: combined images, forward FFTs times basis spectra, one
-/// inverse per channel. `region` is (x0, y0, rw, rh).
+/// inverse per channel. `region` is (x0, y0, rw, rh). This is the path of every worker on one
+/// region (a frame that fits in one tile, [`Blurrer::blur_region`]); tiles and patches, one
+/// worker each, take [`blur_tile`], which gives the same bits.
 fn blur_core(
     factors: &[LowRank; 3],
     spectra: &[Vec<Vec<Complex32>>; 3],
@@ -333,22 +336,15 @@ fn blur_core(
         // The N frames' linear rows side by side (N x ew, in the first-level cache), then
         // every rank's row from them in one pass.
         let mut rows = vec![0.0f32; n * ew];
-        let f = &factors[c];
-        // The coefficients a_kr as f32 (frame-major: frame k's for every rank), once per job.
-        let a: Vec<f32> = f.coeffs.iter().flat_map(|ck| ck.iter().map(|&v| v as f32)).collect();
+        let a = coefficients(&factors[c]);
         let y_lo = band * band_rows;
         let rows_here = outs[0].len() / wp;
         let (px0, px1) = ((ex.max(0) as usize).min(fw), ((ex + ew as isize).max(0) as usize).min(fw));
         for ly in 0..rows_here {
             let sy = reflect(ey + (y_lo + ly) as isize, fh);
-            if ly + PREFETCH_ROWS < rows_here {
-                let ahead = reflect(ey + (y_lo + ly + PREFETCH_ROWS) as isize, fh);
-                frames.iter().for_each(|f| f.prefetch_row(c, ahead, px0, px1));
-            }
-            for (frame, row) in frames.iter().zip(rows.chunks_exact_mut(ew)) {
-                frame.linear_row(c, sy, span, row);
-            }
-            combine_rows(&a, &rows, ew, &mut outs, ly * wp, wp);
+            let ahead = (ly + PREFETCH_ROWS < rows_here).then(|| reflect(ey + (y_lo + ly + PREFETCH_ROWS) as isize, fh));
+            let src = RowSource { frames, c, span, px: (px0, px1) };
+            src.combined_row(sy, ahead, &mut rows, &a, &mut outs, ly * wp, wp);
         }
     };
     if parallel {
@@ -395,6 +391,142 @@ fn blur_core(
     };
     let mut it = outs.into_iter();
     std::array::from_fn(|_| it.next().expect("3 channels"))
+}
+
+/// The coefficients a_kr of a channel's factorisation as f32, frame-major (frame k's for every
+/// rank), as [`combine_rows`] reads them.
+fn coefficients(f: &LowRank) -> Vec<f32> {
+    f.coeffs.iter().flat_map(|ck| ck.iter().map(|&v| v as f32)).collect()
+}
+
+/// Where the combined images of one channel read their rows: the window's frames, the channel,
+/// the columns (`span`, `ew` wide) and the frame columns they lie in (`px`, for prefetching).
+struct RowSource<'a> {
+    frames: &'a [Arc<Frame>],
+    c: usize,
+    span: Cols<'a>,
+    px: (usize, usize),
+}
+
+impl RowSource<'_> {
+    /// One row of every rank's combined image: the N frames' linear rows at frame row `sy` side
+    /// by side in `rows` (N x ew, in the first-level cache), then [`combine_rows`] into row `at`
+    /// of `outs`. `ahead`: a frame row to prefetch for a later call.
+    #[allow(clippy::too_many_arguments)]
+    fn combined_row(&self, sy: usize, ahead: Option<usize>, rows: &mut [f32], a: &[f32], outs: &mut [&mut [f32]], at: usize, wp: usize) {
+        if let Some(ahead) = ahead {
+            self.frames.iter().for_each(|f| f.prefetch_row(self.c, ahead, self.px.0, self.px.1));
+        }
+        let ew = rows.len() / self.frames.len();
+        for (frame, row) in self.frames.iter().zip(rows.chunks_exact_mut(ew)) {
+            frame.linear_row(self.c, sy, self.span, row);
+        }
+        combine_rows(a, rows, ew, outs, at, wp);
+    }
+}
+
+/// Buffers of one worker's [`blur_tile`], kept between windows (no page faults on the hot path).
+struct TileWork {
+    /// Per rank: a strip of combined rows (`STRIP x wp`), the row transforms' input and scratch.
+    lines: Vec<Vec<f32>>,
+    /// Per rank: its transform in the transposed layout (`wc` columns of `hp`).
+    cols: Vec<Vec<Complex32>>,
+    /// One channel's products summed over the ranks, then inverse-transformed by columns.
+    acc: Vec<Complex32>,
+    /// A strip of inverse-transformed rows (`STRIP x wp`).
+    back: Vec<f32>,
+}
+
+impl TileWork {
+    fn new(ranks: usize, conv: &FftConv) -> TileWork {
+        let (hp, wp, wc) = (conv.hp, conv.wp, conv.wc());
+        TileWork {
+            lines: (0..ranks).map(|_| vec![0.0f32; STRIP * wp]).collect(),
+            cols: (0..ranks).map(|_| vec![Complex32::new(0.0, 0.0); wc * hp]).collect(),
+            acc: vec![Complex32::new(0.0, 0.0); wc * hp],
+            back: vec![0.0f32; STRIP * wp],
+        }
+    }
+}
+
+/// Columns per group in [`blur_tile`]'s column pass: every rank's group, the basis spectra's
+/// and the sum stay in the second-level cache (8 columns of 432 are 28 KB each).
+const COLUMN_GROUP: usize = 8;
+
+/// [`blur_core`] on one worker, in an order that keeps its data in the caches. Per channel:
+/// each strip of [`STRIP`] rows is combined, row-transformed while it is in the first-level
+/// cache and scattered into the ranks' column buffers; then each group of columns is
+/// transformed, multiplied by the basis spectra, summed over the ranks in order and
+/// inverse-transformed while it stays in the second-level cache; last, only the rows of the
+/// region itself are inverse-transformed. The combined images (R whole padded planes per
+/// channel) are never written, and the inverse skips the margin's rows. The same operations in
+/// the same order as [`blur_core`], so the same bits.
+fn blur_tile(
+    factors: &[LowRank; 3],
+    spectra: &[Vec<Vec<Complex32>>; 3],
+    conv: &mut FftConv,
+    tw: &mut TileWork,
+    frames: &[Arc<Frame>],
+    m: usize,
+    region: (isize, isize, usize, usize),
+) -> [Vec<f32>; 3] {
+    let (x0, y0, rw, rh) = region;
+    let (hp, wp, wc) = (conv.hp, conv.wp, conv.wc());
+    let (fw, fh) = (frames[0].width, frames[0].height);
+    let (ew, eh) = (rw + 2 * m, rh + 2 * m);
+    let (ex, ey) = (x0 - m as isize, y0 - m as isize);
+    let span = if ex >= 0 && ex as usize + ew <= fw { Cols::From(ex as usize) } else { Cols::Mirror(ex) };
+    let src_px = ((ex.max(0) as usize).min(fw), ((ex + ew as isize).max(0) as usize).min(fw));
+    let mut rows = vec![0.0f32; frames.len() * ew];
+    std::array::from_fn(|c| {
+        let ranks = factors[c].basis.len();
+        let a = coefficients(&factors[c]);
+        let src = RowSource { frames, c, span, px: src_px };
+        // Rows: combined, transformed and scattered a strip at a time.
+        for s0 in (0..hp).step_by(STRIP) {
+            let ns = STRIP.min(hp - s0);
+            let mut outs: Vec<&mut [f32]> = tw.lines[..ranks].iter_mut().map(|l| &mut l[..ns * wp]).collect();
+            for i in 0..ns {
+                let ly = s0 + i;
+                if ly < eh {
+                    let sy = reflect(ey + ly as isize, fh);
+                    let ahead = (ly + PREFETCH_ROWS < eh).then(|| reflect(ey + (ly + PREFETCH_ROWS) as isize, fh));
+                    src.combined_row(sy, ahead, &mut rows, &a, &mut outs, i * wp, wp);
+                } else {
+                    outs.iter_mut().for_each(|o| o[i * wp..(i + 1) * wp].fill(0.0));
+                }
+            }
+            for (line, col) in tw.lines[..ranks].iter_mut().zip(&mut tw.cols) {
+                conv.forward_rows(&mut line[..ns * wp], col, s0);
+            }
+        }
+        // Columns: forward, times the basis spectrum, summed over the ranks, inverse.
+        for j0 in (0..wc).step_by(COLUMN_GROUP) {
+            let g = j0 * hp..(j0 + COLUMN_GROUP).min(wc) * hp;
+            let acc = &mut tw.acc[g.clone()];
+            for (r, col) in tw.cols[..ranks].iter_mut().enumerate() {
+                let col = &mut col[g.clone()];
+                conv.columns(col, false);
+                let k = &spectra[c][r][g.clone()];
+                if r == 0 {
+                    acc.iter_mut().zip(col.iter()).zip(k).for_each(|((o, v), k)| *o = v * k);
+                } else {
+                    acc.iter_mut().zip(col.iter()).zip(k).for_each(|((o, v), k)| *o += v * k);
+                }
+            }
+            conv.columns(acc, true);
+        }
+        // The region's rows back to the image domain.
+        let mut out = Vec::with_capacity(rw * rh);
+        for s0 in (m..m + rh).step_by(STRIP) {
+            let ns = STRIP.min(m + rh - s0);
+            conv.inverse_rows(&tw.acc, s0, &mut tw.back[..ns * wp]);
+            for row in tw.back[..ns * wp].chunks_exact(wp) {
+                out.extend_from_slice(&row[m..m + rw]);
+            }
+        }
+        out
+    })
 }
 
 /// The combined images' inner loop: `rows` holds the N frames' rows (N x `ew`) and `a` the
