@@ -134,6 +134,10 @@ pub enum BenchCommand {
         /// Repeats; the median is reported.
         #[arg(long, default_value_t = 5, value_parser = clap::value_parser!(u16).range(1..=100))]
         repeats: u16,
+        /// Rounds alternating PyTorch and the fast path (each `repeats` steps); every ratio
+        /// is the median of the rounds' own ratios.
+        #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u16).range(1..=20))]
+        rounds: u16,
         /// Skip the paper's full-width U-Net (base 64).
         #[arg(long)]
         quick: bool,
@@ -150,13 +154,13 @@ pub enum BenchCommand {
 pub fn command(c: BenchCommand) -> anyhow::Result<()> {
     match c {
         #[cfg(feature = "train")]
-        BenchCommand::Train { batch, repeats, quick, burn } => {
+        BenchCommand::Train { batch, repeats, rounds, quick, burn } => {
             use crate::model::Arch;
             let mut archs = vec![Arch::Shallow { width: 32 }, Arch::Unet { base: 16 }, Arch::Unet { base: 32 }];
             if !quick {
                 archs.push(Arch::Unet { base: 64 });
             }
-            let r = train(&archs, batch, repeats as usize, burn)?;
+            let r = train(&archs, batch, repeats as usize, rounds as usize, burn)?;
             println!("{}", serde_json::to_string_pretty(&r)?);
             Ok(())
         }

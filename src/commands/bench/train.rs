@@ -8,10 +8,14 @@ pub struct ModelSpeed {
     pub parameters: usize,
     pub batch: usize,
     pub threads: usize,
+    /// Alternating rounds with PyTorch (1 without it); speeds are medians over the rounds.
+    pub rounds: usize,
     pub train_patches_per_s_median: f64,
     pub forward_ms_per_patch_median: f64,
+    /// PyTorch's figures of the first round.
     pub torch: Option<serde_json::Value>,
-    /// Our time per patch over PyTorch's (training step; forward of one patch): 1.0 is parity.
+    /// Our time per patch over PyTorch's (training step; forward of one patch), the median of
+    /// the rounds' own ratios: 1.0 is parity.
     pub train_time_ratio_vs_torch: Option<f64>,
     pub forward_time_ratio_vs_torch: Option<f64>,
     /// Convolution FLOPs per 128x128 patch (2 per multiply-add): forward; a training step
@@ -155,8 +159,11 @@ pub(super) fn time_fast(arch: crate::model::Arch, batch: usize, repeats: usize) 
 /// `bench train`: training step and forward speed per 128x128 patch of the given
 /// architectures with the fast path (and burn's path with `with_burn`), beside PyTorch on the
 /// same architectures with the same number of threads when torch is installed
-/// (`benches/torch_models.py`).
-pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize, with_burn: bool) -> crate::Result<Vec<ModelSpeed>> {
+/// (`benches/torch_models.py`). With PyTorch, `rounds` alternate the two engines (PyTorch,
+/// then ours, `repeats` steps each) and each ratio is the median of the rounds' own ratios:
+/// on a shared machine PyTorch alone moved from 8 to 14 patches/s between two runs, and a
+/// ratio of two runs minutes apart said more about the neighbours than about either engine.
+pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize, rounds: usize, with_burn: bool) -> crate::Result<Vec<ModelSpeed>> {
     let script = torch_script();
     let threads = rayon::current_num_threads();
     let peak = fma_peak_gflops();
@@ -166,28 +173,44 @@ pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize, with_bu
     let mut out = Vec::new();
     for &arch in archs {
         let parameters = crate::model::Net::new(arch, &burn::tensor::Device::flex()).trainable_params();
-        let torch_row: Option<serde_json::Value> = script.as_ref().and_then(|script| {
+        let torch_once = || -> Option<serde_json::Value> {
             let (kind, width) = match arch {
                 crate::model::Arch::Unet { base } => ("unet", base),
                 crate::model::Arch::Shallow { width } => ("shallow", width),
             };
             std::process::Command::new(python())
-                .arg(script)
+                .arg(script.as_ref()?)
                 .args([kind, &width.to_string(), &batch.to_string(), &repeats.to_string()])
                 .env("TORCH_THREADS", threads.to_string())
                 .output()
                 .ok()
                 .and_then(|o| serde_json::from_slice(&o.stdout).ok())
-        });
+        };
         let mut engines: Vec<(&'static str, fn(crate::model::Arch, usize, usize) -> (Vec<f64>, Vec<f64>))> = vec![("fast", time_fast)];
         if with_burn {
             engines.push(("burn", time_burn));
         }
         for (engine, f) in engines {
-            let (mut steps, mut fwd) = f(arch, batch, repeats);
-            let (step, fwd) = (median(&mut steps), median(&mut fwd));
-            let tt = torch_row.as_ref().and_then(|t| t["train_patches_per_s_median"].as_f64());
-            let tf = torch_row.as_ref().and_then(|t| t["forward_ms_per_patch_median"].as_f64());
+            // Per round: (our step s, our forward ms, PyTorch's row). Only the fast path
+            // alternates with PyTorch; burn's own path is slow and timed once.
+            let n_rounds = if engine == "fast" && script.is_some() { rounds.max(1) } else { 1 };
+            let mut per_round = Vec::new();
+            for _ in 0..n_rounds {
+                let torch = if engine == "fast" { torch_once() } else { None };
+                let (mut steps, mut fwd) = f(arch, batch, repeats);
+                per_round.push((median(&mut steps), median(&mut fwd), torch));
+            }
+            let col = |g: &dyn Fn(&(f64, f64, Option<serde_json::Value>)) -> Option<f64>| {
+                let mut v: Vec<f64> = per_round.iter().filter_map(g).collect();
+                (!v.is_empty()).then(|| median(&mut v))
+            };
+            let step = col(&|r| Some(r.0)).unwrap_or(f64::NAN);
+            let fwd = col(&|r| Some(r.1)).unwrap_or(f64::NAN);
+            let tt = col(&|r| r.2.as_ref()?["train_patches_per_s_median"].as_f64());
+            let tf = col(&|r| r.2.as_ref()?["forward_ms_per_patch_median"].as_f64());
+            // Each round's own ratio, then their median.
+            let train_ratio = col(&|r| Some(r.2.as_ref()?["train_patches_per_s_median"].as_f64()? * r.0 / batch as f64));
+            let fwd_ratio = col(&|r| Some(r.1 / r.2.as_ref()?["forward_ms_per_patch_median"].as_f64()?));
             let gflop = 2.0 * arch.conv_macs(128, 128).0 as f64 / 1e9;
             let per_core = |gflop_per_s: f64| gflop_per_s / threads as f64;
             let row = ModelSpeed {
@@ -196,11 +219,12 @@ pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize, with_bu
                 parameters,
                 batch,
                 threads,
+                rounds: per_round.len(),
                 train_patches_per_s_median: batch as f64 / step,
                 forward_ms_per_patch_median: fwd,
-                torch: torch_row.clone(),
-                train_time_ratio_vs_torch: tt.map(|t| t * step / batch as f64),
-                forward_time_ratio_vs_torch: tf.map(|t| fwd / t),
+                torch: per_round.iter().find_map(|r| r.2.clone()),
+                train_time_ratio_vs_torch: train_ratio,
+                forward_time_ratio_vs_torch: fwd_ratio,
                 forward_gflop_per_patch: gflop,
                 train_gflops_per_core: per_core(3.0 * gflop * batch as f64 / step),
                 forward_gflops_per_core: per_core(gflop / (fwd / 1e3)),
@@ -213,11 +237,13 @@ pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize, with_bu
                 row.forward_ms_per_patch_median,
                 match (tt, tf) {
                     (Some(tt), Some(tf)) => format!(
-                        "; PyTorch {tt:.2} patches/s, {tf:.1} ms: our time {:.2}x training, {:.2}x forward",
+                        "; PyTorch {tt:.2} patches/s, {tf:.1} ms: our time {:.2}x training, {:.2}x forward (medians of {} alternating rounds)",
                         row.train_time_ratio_vs_torch.unwrap_or(f64::NAN),
-                        row.forward_time_ratio_vs_torch.unwrap_or(f64::NAN)
+                        row.forward_time_ratio_vs_torch.unwrap_or(f64::NAN),
+                        row.rounds
                     ),
-                    _ => "; torch not installed, no comparison".into(),
+                    _ if engine == "fast" => "; torch not installed, no comparison".into(),
+                    _ => String::new(),
                 }
             );
             let share = |g: f64| peak.map_or(String::new(), |(p, _)| format!(", {:.0}% of peak", 100.0 * g / p));
