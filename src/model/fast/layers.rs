@@ -66,7 +66,11 @@ pub struct ConvBnAct {
     pub(super) slope: f32,
     pub(super) ggamma: Vec<f32>,
     pub(super) gbeta: Vec<f32>,
-    pub(super) cache: Option<(T4, Arc<T4>, Vec<f32>)>, // xhat, output, 1 / std
+    /// From `forward_train` for `backward`: the convolution's output z and, per channel, the
+    /// batch mean and 1 / std. x-hat and the activation's sign are recomputed from them with
+    /// the forward's own operations (the same bits), so neither is stored: a whole tensor
+    /// written and read again per layer and step.
+    pub(super) cache: Option<(T4, Vec<f32>, Vec<f32>)>,
 }
 
 impl ConvBnAct {
@@ -125,78 +129,80 @@ impl ConvBnAct {
         let z = self.conv.forward_train(x);
         let (n, c, hw) = (z.n, z.c, z.hw());
         let m = (n * hw) as f64;
-        let mut xhat = T4::zeros(n, c, z.h, z.w);
         let mut out = T4::zeros(n, c, z.h, z.w);
         let (gamma, beta, eps, slope) = (&self.gamma, &self.beta, self.eps as f64, self.slope);
-        let stats = per_channel(c, hw, [&mut xhat, &mut out], |ch, [mut xhs, mut os]| {
+        let stats = per_channel(c, hw, [&mut out], |ch, [mut os]| {
             let zp = |s: usize| &z.d[(s * c + ch) * hw..][..hw];
             let mean = (0..n).map(|s| lanes_sum(zp(s), |v| v)).sum::<f64>() / m;
             // Two passes (mean, then squared deviations), not E[z^2] - mean^2, which cancels.
             let var = (0..n).map(|s| lanes_sum(zp(s), |v| (v - mean) * (v - mean))).sum::<f64>() / m;
             let inv = 1.0 / (var + eps).sqrt();
             let (g, b, meanf, invf) = (gamma[ch], beta[ch], mean as f32, inv as f32);
-            // x-hat and the activation in one pass over z.
             for s in 0..n {
-                for ((xh, o), &v) in xhs[s].iter_mut().zip(os[s].iter_mut()).zip(zp(s)) {
-                    let x = (v - meanf) * invf;
-                    *xh = x;
-                    let p = g * x + b;
+                for (o, &v) in os[s].iter_mut().zip(zp(s)) {
+                    let p = g * ((v - meanf) * invf) + b;
                     *o = if p > 0.0 { p } else { slope * p };
                 }
             }
             (mean as f32, var as f32, inv as f32)
         });
         let mo = self.momentum;
-        let mut inv = Vec::with_capacity(c);
+        let (mut means, mut inv) = (Vec::with_capacity(c), Vec::with_capacity(c));
         for (ch, (mean, var, i)) in stats.into_iter().enumerate() {
             self.rmean[ch] = self.rmean[ch] * (1.0 - mo) + mean * mo;
             self.rvar[ch] = self.rvar[ch] * (1.0 - mo) + var * mo;
+            means.push(mean);
             inv.push(i);
         }
-        let out = Arc::new(out);
-        self.cache = Some((xhat, out.clone(), inv));
-        out
+        self.cache = Some((z, means, inv));
+        Arc::new(out)
     }
-    pub(super) fn backward(&mut self, dout: &T4, need_dx: bool) -> Option<T4> {
-        let (xhat, out, inv) = self.cache.take().expect("forward_train before backward");
+    /// The gradients from the gradient of this layer's output; `dout` becomes the gradient of
+    /// the convolution's output in place (no buffer of its own).
+    pub(super) fn backward(&mut self, mut dout: T4, need_dx: bool) -> Option<T4> {
+        let (z, means, inv) = self.cache.take().expect("forward_train before backward");
         let (n, c, hw) = (dout.n, dout.c, dout.hw());
         let m = (n * hw) as f64;
-        let mut dz = T4::zeros(n, c, dout.h, dout.w);
-        let (gamma, slope) = (&self.gamma, self.slope);
-        let sums = per_channel(c, hw, [&mut dz], |ch, [mut dps]| {
+        let (gamma, beta, slope) = (&self.gamma, &self.beta, self.slope);
+        let sums = per_channel(c, hw, [&mut dout], |ch, [mut dps]| {
             let at = |s: usize| (s * c + ch) * hw;
-            // dpre = dout * act'(pre); act'(pre) follows the sign of the output.
+            let (g, b, meanf, invf) = (gamma[ch], beta[ch], means[ch], inv[ch]);
+            // x-hat as the forward computed it.
+            let xhat = |v: f32| (v - meanf) * invf;
+            // dpre = dout * act'(pre); act'(pre) follows the sign of pre = g x-hat + b (the
+            // output's sign: the slope is not negative).
             let mut sb = 0.0f64;
             let mut sg = 0.0f64;
             for (s, dp) in dps.iter_mut().enumerate() {
-                let (o, d, xh) = (&out.d[at(s)..][..hw], &dout.d[at(s)..][..hw], &xhat.d[at(s)..][..hw]);
-                for i in 0..hw {
-                    dp[i] = if o[i] > 0.0 { d[i] } else { slope * d[i] };
+                let zs = &z.d[at(s)..][..hw];
+                for (d, &v) in dp.iter_mut().zip(zs) {
+                    // A select, not a branch: the signs are as good as random.
+                    *d = if g * xhat(v) + b > 0.0 { *d } else { slope * *d };
                 }
                 // The two sums in f64 lanes (a running f64 sum would serialise them).
                 let mut acc = [[0.0f64; LANES]; 2];
-                let (dc, xc) = (dp.chunks_exact(LANES), xh.chunks_exact(LANES));
-                let (dr, xr) = (dc.remainder(), xc.remainder());
-                for (dv, xv) in dc.zip(xc) {
+                let (dc, zc) = (dp.chunks_exact(LANES), zs.chunks_exact(LANES));
+                let (dr, zr) = (dc.remainder(), zc.remainder());
+                for (dv, zv) in dc.zip(zc) {
                     for l in 0..LANES {
                         acc[0][l] += dv[l] as f64;
-                        acc[1][l] += (dv[l] * xv[l]) as f64;
+                        acc[1][l] += (dv[l] * xhat(zv[l])) as f64;
                     }
                 }
                 let (mut b, mut g) = (acc[0].iter().sum::<f64>(), acc[1].iter().sum::<f64>());
-                for (&v, &x) in dr.iter().zip(xr) {
+                for (&v, &x) in dr.iter().zip(zr) {
                     b += v as f64;
-                    g += (v * x) as f64;
+                    g += (v * xhat(x)) as f64;
                 }
                 sb += b;
                 sg += g;
             }
-            let k = gamma[ch] * inv[ch];
+            let k = g * invf;
             let (mb, mg) = ((sb / m) as f32, (sg / m) as f32);
             for (s, dp) in dps.iter_mut().enumerate() {
-                let xh = &xhat.d[at(s)..][..hw];
-                for i in 0..hw {
-                    dp[i] = k * (dp[i] - mb - xh[i] * mg);
+                let zs = &z.d[at(s)..][..hw];
+                for (d, &v) in dp.iter_mut().zip(zs) {
+                    *d = k * (*d - mb - xhat(v) * mg);
                 }
             }
             (sg as f32, sb as f32)
@@ -205,7 +211,7 @@ impl ConvBnAct {
             self.ggamma[ch] += g;
             self.gbeta[ch] += b;
         }
-        self.conv.backward(&dz, need_dx)
+        self.conv.backward(&dout, need_dx)
     }
     pub(super) fn params(&mut self, f: &mut dyn FnMut(&mut [f32], &mut [f32])) {
         self.conv.params(f);
@@ -236,9 +242,9 @@ impl Double {
         let y = self.a.forward_train(x);
         self.b.forward_train(y)
     }
-    pub(super) fn backward(&mut self, d: &T4, need_dx: bool) -> Option<T4> {
+    pub(super) fn backward(&mut self, d: T4, need_dx: bool) -> Option<T4> {
         let d = self.b.backward(d, true).expect("dx");
-        self.a.backward(&d, need_dx)
+        self.a.backward(d, need_dx)
     }
     pub(super) fn params(&mut self, f: &mut dyn FnMut(&mut [f32], &mut [f32])) {
         self.a.params(f);

@@ -177,13 +177,9 @@ impl FastNet {
     pub fn backward(&mut self, dout: &T4) {
         match &mut self.kind {
             Kind::Shallow(m) => {
-                let mut d = m.out.backward(dout, true).expect("dx");
-                let last = m.blocks.len() - 1;
+                let mut d = m.out.backward(dout, true);
                 for (i, b) in m.blocks.iter_mut().enumerate().rev() {
-                    match b.backward(&d, i != 0) {
-                        Some(next) => d = next,
-                        None => debug_assert_eq!(i, 0, "{last}"),
-                    }
+                    d = b.backward(d.expect("dx"), i != 0);
                 }
             }
             Kind::Unet(m) => {
@@ -197,19 +193,19 @@ impl FastNet {
                 let mut d = m.outc.backward(&d, true).expect("dx");
                 let mut skips = Vec::new();
                 for u in m.ups.iter_mut().rev() {
-                    let dcat = u.conv.backward(&d, true).expect("dx");
+                    let dcat = u.conv.backward(d, true).expect("dx");
                     let (dskip, dup) = split(&dcat, u.skip);
                     d = u.up.backward(&dup);
                     skips.push(dskip);
                 }
                 // skips: gradients of x1, x2, x3, x4 (in that order); d: of the bottom x5.
                 for (dn, mut s) in m.downs.iter_mut().rev().zip(skips.into_iter().rev()) {
-                    let dp = dn.conv.backward(&d, true).expect("dx");
+                    let dp = dn.conv.backward(d, true).expect("dx");
                     let (h, w) = dn.hw_in;
                     add_into(&mut s, &maxpool_backward(&dp, &dn.idx, h, w));
                     d = s;
                 }
-                m.inc.backward(&d, false);
+                m.inc.backward(d, false);
             }
         }
     }
