@@ -98,7 +98,7 @@ pub use commands::generate::GENERATE_TOML;
 /// The peak is unchanged: what is kept is at most what was already in use at once.
 pub fn keep_freed_memory() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
-    // SAFETY: mallopt only changes allocator settings; called before any worker thread starts.
+    // SAFETY: mallopt only changes the allocator's settings and takes its own lock.
     unsafe {
         libc::mallopt(libc::M_MMAP_MAX, 0);
         libc::mallopt(libc::M_TRIM_THRESHOLD, libc::c_int::MAX);

@@ -339,11 +339,11 @@ fn blur_core(
         let a = coefficients(&factors[c]);
         let y_lo = band * band_rows;
         let rows_here = outs[0].len() / wp;
-        let (px0, px1) = ((ex.max(0) as usize).min(fw), ((ex + ew as isize).max(0) as usize).min(fw));
+        let px = ((ex.max(0) as usize).min(fw), ((ex + ew as isize).max(0) as usize).min(fw));
+        let src = RowSource { frames, c, span, px };
         for ly in 0..rows_here {
             let sy = reflect(ey + (y_lo + ly) as isize, fh);
             let ahead = (ly + PREFETCH_ROWS < rows_here).then(|| reflect(ey + (y_lo + ly + PREFETCH_ROWS) as isize, fh));
-            let src = RowSource { frames, c, span, px: (px0, px1) };
             src.combined_row(sy, ahead, &mut rows, &a, &mut outs, ly * wp, wp);
         }
     };
