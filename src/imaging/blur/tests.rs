@@ -226,3 +226,44 @@ fn identical_frames_through_conventional_give_the_frame_back() {
         }
     }
 }
+
+#[test]
+fn point_symmetric_kernels_take_the_real_product_and_moving_ones_the_complex() {
+    let (w, h, n) = (70, 50, 5);
+    let fr = frames(n, w, h, 4);
+    for (kind, symmetric) in [(CameraKind::PhaseCoded, true), (CameraKind::Conventional, true), (CameraKind::Parabolic, false)] {
+        let cam = Arc::new(Camera::new(&OpticsConfig::default(), &CameraConfig::new(kind)));
+        let mut b = Blurrer::new(cam, n, 1, 0.0).unwrap();
+        let s = b.prepare(64, 64);
+        let real: Vec<bool> = s.real.iter().flatten().map(Option::is_some).collect();
+        if symmetric {
+            assert!(real.iter().all(|&r| r), "{kind:?}: every basis spectrum real, got {real:?}");
+            assert!(s.full.iter().flatten().flatten().all(|v| v.im == 0.0), "{kind:?}: imaginary parts set to 0");
+        } else {
+            assert!(real.iter().any(|&r| !r), "{kind:?}: a moving kernel keeps its complex spectrum");
+        }
+        // Either product, tiles against direct convolution.
+        let got = b.blur_tiled(&fr, 32);
+        for (c, worst) in worst_vs_direct(&b, &fr, &got).into_iter().enumerate() {
+            assert!(worst < 1e-5, "{kind:?} channel {c}: {worst}");
+        }
+    }
+}
+
+#[test]
+fn the_real_product_equals_the_complex_one_with_a_zero_imaginary_part() {
+    let v: Vec<Complex32> = (0..37).map(|i| Complex32::new(((i * 13) % 7) as f32 - 3.0, ((i * 5) % 11) as f32 * 0.37 - 1.5)).collect();
+    let k: Vec<f32> = (0..37).map(|i| ((i * 3) % 5) as f32 * 0.61 - 1.1).collect();
+    let start: Vec<Complex32> = (0..37).map(|i| Complex32::new(i as f32 * 0.25, -(i as f32))).collect();
+    for add in [false, true] {
+        let mut got = start.clone();
+        mul_real(&mut got, &v, &k, add);
+        let want: Vec<Complex32> = start
+            .iter()
+            .zip(&v)
+            .zip(&k)
+            .map(|((a, v), &k)| if add { a + v * Complex32::new(k, 0.0) } else { v * Complex32::new(k, 0.0) })
+            .collect();
+        assert_eq!(got, want, "add = {add}");
+    }
+}
