@@ -38,29 +38,65 @@ pub fn inverse_normal_cdf(p: f64) -> f64 {
 
 /// Encodes and quantises planar linear RGB to interleaved 8-bit, adding `sigma` (0-255 scale)
 /// of noise keyed on absolute pixel positions (`x0`, `y0` is the image's top-left in the frame).
+/// Bands of rows run on all cores (each row's values depend on that row alone, so the result is
+/// the same for any thread count); a patch-sized image stays on the calling thread.
 #[allow(clippy::too_many_arguments)]
 pub fn quantise(p: &[Vec<f32>; 3], w: usize, h: usize, x0: usize, y0: usize, enc: &Encoder, sigma: f64, key: u64) -> Vec<u8> {
     let mut out = vec![0u8; w * h * 3];
-    let s = (sigma / 255.0) as f32;
-    let table = normal_table();
-    // Row by row in passes: encode (table lookups), add noise (one hash per pixel), then clip and
-    // round in a loop the compiler vectorises; the same operations per value as pixel by pixel.
-    let mut v: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0f32; w]);
-    for y in 0..h {
+    let row = Row { p, w, x0, y0, enc, s: (sigma / 255.0) as f32, noisy: sigma > 0.0, key };
+    let band = QUANTISE_BAND_ROWS * w * 3;
+    if w * h < QUANTISE_PARALLEL_PIXELS || out.is_empty() {
+        let mut v: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0f32; w]);
+        out.chunks_mut(w * 3).enumerate().for_each(|(y, o)| row.quantise(y, &mut v, o));
+    } else {
+        use rayon::prelude::*;
+        out.par_chunks_mut(band).enumerate().for_each_init(
+            || -> [Vec<f32>; 3] { std::array::from_fn(|_| vec![0.0f32; w]) },
+            |v, (b, chunk)| chunk.chunks_mut(w * 3).enumerate().for_each(|(i, o)| row.quantise(b * QUANTISE_BAND_ROWS + i, v, o)),
+        );
+    }
+    out
+}
+
+/// Rows per parallel unit of [`quantise`].
+const QUANTISE_BAND_ROWS: usize = 16;
+/// Images smaller than this (pixels) are quantised on the calling thread: patches.
+const QUANTISE_PARALLEL_PIXELS: usize = 1 << 16;
+
+/// What [`quantise`] needs for one row.
+struct Row<'a> {
+    p: &'a [Vec<f32>; 3],
+    w: usize,
+    x0: usize,
+    y0: usize,
+    enc: &'a Encoder,
+    /// Sigma on the 0-1 scale.
+    s: f32,
+    noisy: bool,
+    key: u64,
+}
+
+impl Row<'_> {
+    /// Row `y` into `o` (interleaved, `3 w`), with `v` as the three channels' scratch.
+    fn quantise(&self, y: usize, v: &mut [Vec<f32>; 3], o: &mut [u8]) {
+        let (w, p, s) = (self.w, self.p, self.s);
+        // In passes: encode (table lookups), add noise (one hash per pixel), then clip and
+        // round in a loop the compiler vectorises; the same operations per value as pixel by
+        // pixel.
         for (c, vc) in v.iter_mut().enumerate() {
-            vc.iter_mut().zip(&p[c][y * w..(y + 1) * w]).for_each(|(o, &x)| *o = enc.encode(x));
+            vc.iter_mut().zip(&p[c][y * w..(y + 1) * w]).for_each(|(o, &x)| *o = self.enc.encode(x));
         }
-        if sigma > 0.0 {
-            let row_key = mix(key ^ ((y + y0) as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
-            let [r, g, b] = &mut v;
+        if self.noisy {
+            let table = normal_table();
+            let row_key = mix(self.key ^ ((y + self.y0) as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+            let [r, g, b] = v;
             for (x, ((r, g), b)) in r.iter_mut().zip(g.iter_mut()).zip(b.iter_mut()).enumerate() {
-                let hsh = mix(row_key ^ (x + x0) as u64);
+                let hsh = mix(row_key ^ (x + self.x0) as u64);
                 *r += s * table[hsh as usize & 0xFFFF];
                 *g += s * table[(hsh >> 16) as usize & 0xFFFF];
                 *b += s * table[(hsh >> 32) as usize & 0xFFFF];
             }
         }
-        let o = &mut out[y * w * 3..(y + 1) * w * 3];
         for (c, vc) in v.iter().enumerate() {
             for (x, &val) in vc.iter().enumerate() {
                 let q = val.clamp(0.0, 1.0) * 255.0 + 0.5;
@@ -70,7 +106,6 @@ pub fn quantise(p: &[Vec<f32>; 3], w: usize, h: usize, x0: usize, y0: usize, enc
             }
         }
     }
-    out
 }
 
 #[cfg(test)]
@@ -99,14 +134,22 @@ mod tests {
 
     #[test]
     fn noise_depends_on_absolute_position_only() {
-        let (w, h) = (40, 30);
+        // 320 x 240 is quantised in parallel bands, its crops on this thread: the same bytes.
+        let (w, h) = (320, 240);
+        assert!(w * h >= QUANTISE_PARALLEL_PIXELS);
         let p: [Vec<f32>; 3] = std::array::from_fn(|c| (0..w * h).map(|i| ((i * 7 + c) % 97) as f32 / 97.0).collect());
         let enc = Encoder::new(Curve::Srgb);
         let full = quantise(&p, w, h, 0, 0, &enc, 5.0, 3);
-        let crop = super::super::blur::crop(&p, w, 11, 7, 16, 12);
-        let part = quantise(&crop, 16, 12, 11, 7, &enc, 5.0, 3);
-        for y in 0..12 {
-            assert_eq!(&part[y * 48..(y + 1) * 48], &full[((y + 7) * w + 11) * 3..((y + 7) * w + 27) * 3]);
+        for (x, y, cw, ch) in [(11, 7, 16, 12), (200, 150, 120, 90), (0, 0, 40, 30)] {
+            let crop = super::super::blur::crop(&p, w, x, y, cw, ch);
+            let part = quantise(&crop, cw, ch, x, y, &enc, 5.0, 3);
+            for yy in 0..ch {
+                assert_eq!(
+                    &part[yy * cw * 3..(yy + 1) * cw * 3],
+                    &full[((y + yy) * w + x) * 3..((y + yy) * w + x + cw) * 3],
+                    "crop at {x},{y}, row {yy}"
+                );
+            }
         }
     }
 
