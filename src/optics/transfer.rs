@@ -64,6 +64,11 @@ impl Encoder {
         Encoder { curve, lut: (0..=65536u32).map(|i| curve.encode(i as f64 / 65536.0) as f32).collect() }
     }
 
+    /// The table [`Encoder::encode`] interpolates: `curve.encode(i / 65536)` for i in 0..=65536.
+    pub fn table(&self) -> &[f32] {
+        &self.lut
+    }
+
     #[inline]
     pub fn encode(&self, v: f32) -> f32 {
         let x = v.clamp(0.0, 1.0) * 65536.0;
