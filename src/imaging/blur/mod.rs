@@ -52,8 +52,8 @@ struct Workspace {
 /// (`k(x, y) = k(-x, -y)`: every camera whose sub-frame kernels do not move within the
 /// exposure, the coded one included) its real part alone. Such a spectrum is real; the
 /// imaginary parts an FFT leaves are rounding noise, so they are set to exactly 0 in `full` too,
-/// and a product with `real` gives the same bits as the complex product with `full`.
-pub(crate) struct Spectra {
+/// and a product with `real` gives the same values as the complex product with `full`.
+struct Spectra {
     full: [Vec<Vec<Complex32>>; 3],
     real: [Vec<Option<Vec<f32>>>; 3],
 }
@@ -648,8 +648,8 @@ unsafe fn combine_block<const NR: usize>(a: &[f32], rows: &[f32], ew: usize, out
 }
 
 /// `acc (+)= v * k` for a real spectrum `k`: each value's real and imaginary part times its
-/// `k`, the same bits as the complex product with `k + 0i` (`x - 0 = x`, `0 + y = y`) with half
-/// the spectrum read and a third of the arithmetic.
+/// `k`, the same values as the complex product with `k + 0i` (`x - 0 = x`, `0 + y = y`; at most
+/// the sign of a zero differs) with half the spectrum read and a third of the arithmetic.
 fn mul_real(acc: &mut [Complex32], v: &[Complex32], k: &[f32], add: bool) {
     #[cfg(target_arch = "x86_64")]
     if std::is_x86_feature_detected!("avx2") {
