@@ -121,22 +121,16 @@ impl R2c {
 /// realfft's twiddle pass (see [`R2c`]), AVX2 where the CPU has it.
 fn untangle(twiddles: &[Complex32], output: &mut [Complex32]) {
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") {
-        // SAFETY: the CPU has AVX2.
-        return unsafe { untangle_avx2(twiddles, output) };
-    }
-    untangle_plain(twiddles, output)
+    let vector = std::is_x86_feature_detected!("avx2");
+    #[cfg(not(target_arch = "x86_64"))]
+    let vector = false;
+    untangle_with(twiddles, output, vector)
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-/// [`untangle_plain`] four pairs at a time: each used lane gets the scalar loop's operations
-/// in its order (no fused multiply-add), so the same bits.
-unsafe fn untangle_avx2(twiddles: &[Complex32], output: &mut [Complex32]) {
-    use std::arch::x86_64::{
-        __m256, _mm256_add_ps, _mm256_blend_ps, _mm256_castpd_ps, _mm256_castps_pd, _mm256_loadu_ps, _mm256_movehdup_ps,
-        _mm256_moveldup_ps, _mm256_mul_ps, _mm256_permute4x64_pd, _mm256_set1_ps, _mm256_storeu_ps, _mm256_sub_ps,
-    };
+/// The twiddle pass: the first and last values from the first, then each pair (k, n - 1 - k)
+/// for k >= 1, the left half against the right half reversed; four pairs at a time in AVX2 when
+/// `vector` (the caller has checked the CPU).
+fn untangle_with(twiddles: &[Complex32], output: &mut [Complex32], vector: bool) {
     let n = output.len();
     let first = output[0];
     output[0] = Complex32::new(first.re + first.im, 0.0);
@@ -145,13 +139,38 @@ unsafe fn untangle_avx2(twiddles: &[Complex32], output: &mut [Complex32]) {
     let rl = right.len();
     let (left, right) = (&mut left[1..], &mut right[..rl - 1]);
     let m = twiddles.len().min(left.len()).min(right.len());
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: `vector` only where the CPU has AVX2.
+    let done = if vector { unsafe { untangle_pairs_avx2(twiddles, left, right, m) } } else { 0 };
+    #[cfg(not(target_arch = "x86_64"))]
+    let done = {
+        let _ = vector;
+        0
+    };
+    untangle_pairs(twiddles, left, right, done..m);
+    if n % 2 == 1 {
+        output[n / 2].im = -output[n / 2].im;
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+/// [`untangle_pairs`] four pairs at a time over `0..m`, as far as whole groups reach; returns
+/// where it stopped. Each used lane gets the scalar loop's operations in its order (no fused
+/// multiply-add), so the same bits.
+unsafe fn untangle_pairs_avx2(twiddles: &[Complex32], left: &mut [Complex32], right: &mut [Complex32], m: usize) -> usize {
+    use std::arch::x86_64::{
+        __m256, _mm256_add_ps, _mm256_blend_ps, _mm256_castpd_ps, _mm256_castps_pd, _mm256_loadu_ps, _mm256_movehdup_ps,
+        _mm256_moveldup_ps, _mm256_mul_ps, _mm256_permute4x64_pd, _mm256_set1_ps, _mm256_storeu_ps, _mm256_sub_ps,
+    };
+    assert!(m <= twiddles.len() && m <= left.len() && m <= right.len());
     let rl = right.len();
     // Four complex values in reverse order (the 64-bit lanes of the vector).
     let reverse = |v: __m256| _mm256_castpd_ps(_mm256_permute4x64_pd::<0x1B>(_mm256_castps_pd(v)));
     let half = _mm256_set1_ps(0.5);
     let mut k = 0;
     while k + 4 <= m {
-        // SAFETY: k + 4 <= m <= each slice's length, and rl - k - 4 >= 0 values start the
+        // SAFETY: k + 4 <= m <= each slice's length (asserted), so rl - k - 4 >= 0 starts the
         // right-hand group; Complex32 is two f32.
         unsafe {
             let out = _mm256_loadu_ps(left.as_ptr().add(k).cast::<f32>());
@@ -174,14 +193,10 @@ unsafe fn untangle_avx2(twiddles: &[Complex32], output: &mut [Complex32]) {
         }
         k += 4;
     }
-    untangle_pairs(twiddles, left, right, k..m);
-    if n % 2 == 1 {
-        output[n / 2].im = -output[n / 2].im;
-    }
+    k
 }
 
-/// The pairs `k` of `range` of [`untangle_plain`]: `left[k]` against `right[len - 1 - k]`.
-#[inline(always)]
+/// The pairs `k` of `range`: `left[k]` against `right[len - 1 - k]`, realfft's operations.
 fn untangle_pairs(twiddles: &[Complex32], left: &mut [Complex32], right: &mut [Complex32], range: std::ops::Range<usize>) {
     let rl = right.len();
     for k in range {
@@ -198,22 +213,6 @@ fn untangle_pairs(twiddles: &[Complex32], left: &mut [Complex32], right: &mut [C
         let im = twiddled_im_sum.im - twiddled_re_diff.re;
         left[k] = Complex32::new(half_sum_re + re, half_diff_im + im);
         right[rl - 1 - k] = Complex32::new(half_sum_re - re, im - half_diff_im);
-    }
-}
-
-fn untangle_plain(twiddles: &[Complex32], output: &mut [Complex32]) {
-    let n = output.len();
-    let first = output[0];
-    output[0] = Complex32::new(first.re + first.im, 0.0);
-    output[n - 1] = Complex32::new(first.re - first.im, 0.0);
-    // Pairs (k, n - 1 - k) for k in 1..: the left half against the right half reversed.
-    let (left, right) = output.split_at_mut(n / 2);
-    let rl = right.len();
-    let (left, right) = (&mut left[1..], &mut right[..rl - 1]);
-    let m = twiddles.len().min(left.len()).min(right.len());
-    untangle_pairs(twiddles, left, right, 0..m);
-    if n % 2 == 1 {
-        output[n / 2].im = -output[n / 2].im;
     }
 }
 
@@ -625,7 +624,7 @@ mod tests {
             if let R2c::Even { twiddles, .. } = &ours {
                 let mut plain: Vec<Complex32> = (0..len / 2 + 1).map(|_| Complex32::new(lcg(&mut seed), lcg(&mut seed))).collect();
                 let mut fast = plain.clone();
-                untangle_plain(twiddles, &mut plain);
+                untangle_with(twiddles, &mut plain, false);
                 untangle(twiddles, &mut fast);
                 assert_eq!(bits(&fast), bits(&plain), "length {len}: vector and scalar pass");
             }
