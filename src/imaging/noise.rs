@@ -43,9 +43,12 @@ pub fn inverse_normal_cdf(p: f64) -> f64 {
 #[allow(clippy::too_many_arguments)]
 pub fn quantise(p: &[Vec<f32>; 3], w: usize, h: usize, x0: usize, y0: usize, enc: &Encoder, sigma: f64, key: u64) -> Vec<u8> {
     let mut out = vec![0u8; w * h * 3];
+    if out.is_empty() {
+        return out;
+    }
     let row = Row { p, w, x0, y0, enc, s: (sigma / 255.0) as f32, noisy: sigma > 0.0, key };
     let band = QUANTISE_BAND_ROWS * w * 3;
-    if w * h < QUANTISE_PARALLEL_PIXELS || out.is_empty() {
+    if w * h < QUANTISE_PARALLEL_PIXELS {
         let mut v: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0f32; w]);
         out.chunks_mut(w * 3).enumerate().for_each(|(y, o)| row.quantise(y, &mut v, o));
     } else {
@@ -322,6 +325,7 @@ mod tests {
         let p: [Vec<f32>; 3] = std::array::from_fn(|c| (0..w * h).map(|i| ((i * 7 + c) % 97) as f32 / 97.0).collect());
         let enc = Encoder::new(Curve::Srgb);
         let full = quantise(&p, w, h, 0, 0, &enc, 5.0, 3);
+        assert!(quantise(&p, 0, 5, 0, 0, &enc, 5.0, 3).is_empty() && quantise(&p, 5, 0, 0, 0, &enc, 5.0, 3).is_empty());
         for (x, y, cw, ch) in [(11, 7, 16, 12), (200, 150, 120, 90), (0, 0, 40, 30)] {
             let crop = super::super::blur::crop(&p, w, x, y, cw, ch);
             let part = quantise(&crop, cw, ch, x, y, &enc, 5.0, 3);
