@@ -98,26 +98,44 @@ impl Row<'_> {
 
     /// [`Row::quantise`] one value at a time.
     fn quantise_plain(&self, y: usize, v: &mut [Vec<f32>; 3], o: &mut [u8]) {
-        let (w, p, s) = (self.w, self.p, self.s);
         // In passes: encode (table lookups), add noise (one hash per pixel), then clip and
-        // round in a loop the compiler vectorises; the same operations per value as pixel by
-        // pixel.
-        for (c, vc) in v.iter_mut().enumerate() {
-            vc.iter_mut().zip(&p[c][y * w..(y + 1) * w]).for_each(|(o, &x)| *o = self.enc.encode(x));
-        }
+        // round; the same operations per value as pixel by pixel.
+        self.encode_from(y, v, 0);
         if self.noisy {
-            let table = normal_table();
-            let row_key = mix(self.key ^ ((y + self.y0) as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
-            let [r, g, b] = v;
-            for (x, ((r, g), b)) in r.iter_mut().zip(g.iter_mut()).zip(b.iter_mut()).enumerate() {
-                let hsh = mix(row_key ^ (x + self.x0) as u64);
-                *r += s * table[hsh as usize & 0xFFFF];
-                *g += s * table[(hsh >> 16) as usize & 0xFFFF];
-                *b += s * table[(hsh >> 32) as usize & 0xFFFF];
-            }
+            self.add_noise_from(y, v, 0);
         }
+        self.round_from(v, o, 0);
+    }
+
+    /// The key of row `y`'s pixel hashes.
+    fn row_key(&self, y: usize) -> u64 {
+        mix(self.key ^ ((y + self.y0) as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15))
+    }
+
+    /// Columns `from..w` of row `y`, encoded into `v`.
+    fn encode_from(&self, y: usize, v: &mut [Vec<f32>; 3], from: usize) {
+        let w = self.w;
+        for (c, vc) in v.iter_mut().enumerate() {
+            vc[from..w].iter_mut().zip(&self.p[c][y * w + from..(y + 1) * w]).for_each(|(o, &x)| *o = self.enc.encode(x));
+        }
+    }
+
+    /// Each pixel's noise added to columns `from..w` of `v` (row `y`).
+    fn add_noise_from(&self, y: usize, v: &mut [Vec<f32>; 3], from: usize) {
+        let (table, row_key, s) = (normal_table(), self.row_key(y), self.s);
+        let [r, g, b] = v;
+        for x in from..self.w {
+            let hsh = mix(row_key ^ (x + self.x0) as u64);
+            r[x] += s * table[hsh as usize & 0xFFFF];
+            g[x] += s * table[(hsh >> 16) as usize & 0xFFFF];
+            b[x] += s * table[(hsh >> 32) as usize & 0xFFFF];
+        }
+    }
+
+    /// Columns `from..w` of `v` clipped, scaled to 0-255, rounded and interleaved into `o`.
+    fn round_from(&self, v: &[Vec<f32>; 3], o: &mut [u8], from: usize) {
         for (c, vc) in v.iter().enumerate() {
-            for (x, &val) in vc.iter().enumerate() {
+            for (x, &val) in vc.iter().enumerate().take(self.w).skip(from) {
                 let q = val.clamp(0.0, 1.0) * 255.0 + 0.5;
                 // SAFETY: q is finite (clamped, then scaled) and in [0.5, 255.5]: an exact
                 // truncation, without the saturation checks of `as`.
@@ -171,12 +189,10 @@ impl Row<'_> {
                     m &= m - 1;
                 }
             }
-            for (o, &x) in vc[whole..w].iter_mut().zip(&src[whole..]) {
-                *o = self.enc.encode(x);
-            }
         }
+        self.encode_from(y, v, whole);
         if self.noisy {
-            let row_key = mix(self.key ^ ((y + self.y0) as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+            let row_key = self.row_key(y);
             let table = normal_table();
             let s = _mm512_set1_ps(self.s);
             let mix8 = |z: __m512i| {
@@ -213,13 +229,7 @@ impl Row<'_> {
                     }
                 }
             }
-            let [r, g, b] = v;
-            for x in whole..w {
-                let hsh = mix(row_key ^ (x + self.x0) as u64);
-                r[x] += self.s * table[hsh as usize & 0xFFFF];
-                g[x] += self.s * table[(hsh >> 16) as usize & 0xFFFF];
-                b[x] += self.s * table[(hsh >> 32) as usize & 0xFFFF];
-            }
+            self.add_noise_from(y, v, whole);
         }
         // Clip, scale, round; the three channels' 16 bytes side by side in one vector, then
         // interleaved (r g b r g b ...) by one permute and stored as 48 bytes.
@@ -238,13 +248,7 @@ impl Row<'_> {
                 _mm512_mask_storeu_epi8(o.as_mut_ptr().add(3 * i).cast(), (1u64 << 48) - 1, _mm512_permutexvar_epi8(interleave, rgb))
             };
         }
-        for (c, vc) in v.iter().enumerate() {
-            for x in whole..w {
-                let q = vc[x].clamp(0.0, 1.0) * 255.0 + 0.5;
-                // SAFETY: as in `quantise_plain`.
-                o[x * 3 + c] = unsafe { q.to_int_unchecked::<i32>() } as u8;
-            }
-        }
+        self.round_from(v, o, whole);
     }
 }
 
