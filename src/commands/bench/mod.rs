@@ -141,6 +141,10 @@ pub enum BenchCommand {
         /// Skip the paper's full-width U-Net (base 64).
         #[arg(long)]
         quick: bool,
+        /// Time only these networks (repeat the flag for several), e.g. `--only unet-16` to
+        /// measure one change to the trainer in a few minutes.
+        #[arg(long, value_name = "NETWORK", value_parser = ["shallow-32", "unet-16", "unet-32", "unet-64"])]
+        only: Vec<String>,
         /// Also time burn's own CPU path (the reference the fast path replaces; slow).
         #[arg(long)]
         burn: bool,
@@ -154,12 +158,19 @@ pub enum BenchCommand {
 pub fn command(c: BenchCommand) -> anyhow::Result<()> {
     match c {
         #[cfg(feature = "train")]
-        BenchCommand::Train { batch, repeats, rounds, quick, burn } => {
+        BenchCommand::Train { batch, repeats, rounds, quick, only, burn } => {
             use crate::model::Arch;
-            let mut archs = vec![Arch::Shallow { width: 32 }, Arch::Unet { base: 16 }, Arch::Unet { base: 32 }];
-            if !quick {
-                archs.push(Arch::Unet { base: 64 });
-            }
+            let all = [
+                ("shallow-32", Arch::Shallow { width: 32 }),
+                ("unet-16", Arch::Unet { base: 16 }),
+                ("unet-32", Arch::Unet { base: 32 }),
+                ("unet-64", Arch::Unet { base: 64 }),
+            ];
+            let archs: Vec<Arch> = all
+                .into_iter()
+                .filter(|(name, _)| if only.is_empty() { !(quick && *name == "unet-64") } else { only.iter().any(|o| o == name) })
+                .map(|(_, a)| a)
+                .collect();
             let r = train(&archs, batch, repeats as usize, rounds as usize, burn)?;
             println!("{}", serde_json::to_string_pretty(&r)?);
             Ok(())

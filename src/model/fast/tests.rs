@@ -73,6 +73,23 @@ fn convolution_matches_burn_forward_and_both_gradients() {
 }
 
 #[test]
+fn a_band_transposes_pixel_major_at_any_size() {
+    // Sizes that are not multiples of the 8 x 8 tile, a row stride wider than the band, and a
+    // buffer that holds old values longer than the band (they must be left alone or overwritten).
+    for (c, npx, rs) in [(1, 1, 1), (3, 13, 20), (16, 64, 64), (11, 9, 9)] {
+        let src: Vec<f32> = (0..c * rs).map(|i| i as f32).collect();
+        let mut dst = vec![-1.0; c * npx + 5];
+        kernels::transpose_band(&src, c, rs, npx, &mut dst);
+        for p in 0..npx {
+            for ch in 0..c {
+                assert_eq!(dst[p * c + ch], src[ch * rs + p], "c {c} npx {npx} pixel {p} channel {ch}");
+            }
+        }
+        assert_eq!(&dst[c * npx..], &[-1.0; 5], "past the band");
+    }
+}
+
+#[test]
 fn transposed_convolution_matches_burn() {
     for (i, &(n, cin, cout, h, w)) in [(1, 8, 8, 5, 7), (3, 16, 4, 4, 4)].iter().enumerate() {
         let up = ConvTranspose2dConfig::new([cin, cout], [2, 2]).with_stride([2, 2]).init(&ad());
