@@ -143,7 +143,7 @@ pub enum BenchCommand {
         quick: bool,
         /// Time only these networks (repeat the flag for several), e.g. `--only unet-16` to
         /// measure one change to the trainer in a few minutes.
-        #[arg(long, value_name = "NETWORK", value_parser = ["shallow-32", "unet-16", "unet-32", "unet-64"])]
+        #[arg(long, value_name = "NETWORK", conflicts_with = "quick", value_parser = ["shallow-32", "unet-16", "unet-32", "unet-64"])]
         only: Vec<String>,
         /// Also time burn's own CPU path (the reference the fast path replaces; slow).
         #[arg(long)]

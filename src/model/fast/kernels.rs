@@ -286,13 +286,9 @@ pub fn conv_backward_weight(x: &T4, dy: &T4, k: usize) -> Vec<f32> {
             gt
         })
         .collect();
-    let gt = sum_in_order(partials);
-    let mut g = vec![0.0f32; cout * kk];
-    for (i, row) in gt.chunks_exact(cout.max(1)).enumerate() {
-        for (co, &v) in row.iter().enumerate() {
-            g[co * kk + i] = v;
-        }
-    }
+    // G[co, i] = G^T[i, co]: G^T's kk rows of cout values, written column-major.
+    let mut g = Vec::new();
+    transpose_band(&sum_in_order(partials), kk, cout, cout, &mut g);
     g
 }
 
