@@ -62,7 +62,8 @@ def main():
     model.eval()
     fwd = []
     with torch.no_grad():
-        for r in range(repeats + 1):
+        # One patch is short (10-100 ms): ten times the repeats, as src/commands/bench/train.rs.
+        for r in range(10 * repeats + 1):
             t = time.perf_counter()
             model(x[:1])
             if r:

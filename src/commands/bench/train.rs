@@ -146,7 +146,9 @@ pub(super) fn time_fast(arch: crate::model::Arch, batch: usize, repeats: usize) 
     }
     let one = bench_data(1, 2);
     let mut fwd = Vec::new();
-    for r in 0..repeats + 1 {
+    // One patch is short (10-100 ms) and its median noisy: ten times the repeats, as
+    // benches/torch_models.py.
+    for r in 0..10 * repeats + 1 {
         let t = Instant::now();
         std::hint::black_box(net.forward(&one));
         if r > 0 {
