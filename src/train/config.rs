@@ -54,7 +54,7 @@ pub struct OptimConfig {
     /// Start from the identity: the last layer zeroed, so the residual passes the input.
     #[serde(default = "d_true")]
     pub zero_init: bool,
-    /// `fast`: the CPU path of `src/model/fast.rs` (im2col + gemm on all cores); `burn`: burn's
+    /// `fast`: the CPU path of `src/model/fast/` (shifted copies + gemm on all cores); `burn`: burn's
     /// autodiff on its flex CPU backend (the reference; with the `wgpu`/`cuda` features the
     /// path a GPU build takes).
     #[serde(default)]

@@ -86,14 +86,17 @@ pub(super) fn matmul(
     unsafe { mm(m, n, k, dst.as_mut_ptr(), dst_rs, acc, a.as_ptr(), a_rs, a_cs, b.as_ptr(), b_rs, b_cs) }
 }
 
-/// Rows per band so that a band's im2col matrix (`k` rows of `rows * w` pixels) stays near
-/// 1 MiB, cache-sized; a function of the sizes alone.
+/// Rows per band so that a band's buffer (`k` rows of `rows * w` values) stays within 1 MiB,
+/// cache-sized: a power of two, so that a side that is one (every U-Net level of a 128 x 128
+/// patch) splits into equal bands, as many as a power-of-two number of threads can share evenly.
+/// A function of the sizes alone.
 pub(super) fn band_rows(k: usize, h: usize, w: usize) -> usize {
-    ((1usize << 18) / (k * w).max(1)).clamp(1, h.max(1))
+    let most = ((1usize << 18) / (k * w).max(1)).max(1);
+    (1usize << most.ilog2()).min(h.max(1))
 }
 
 thread_local! {
-    /// Each worker thread's im2col band buffer, kept across layers and steps: a fresh one per
+    /// Each worker thread's band buffer ([`shifted_band`]), kept across layers and steps: a fresh one per
     /// call was zero-filled every time (3 to 8% of a training step, more with more threads).
     static COL: std::cell::Cell<Vec<f32>> = const { std::cell::Cell::new(Vec::new()) };
     /// Each worker thread's buffer for a band of the output gradient, pixel-major
@@ -110,7 +113,7 @@ fn with_buf<R>(key: &'static std::thread::LocalKey<std::cell::Cell<Vec<f32>>>, f
     r
 }
 
-/// Runs `f` with this thread's im2col buffer.
+/// Runs `f` with this thread's band buffer.
 pub(super) fn with_col<R>(f: impl FnOnce(&mut Vec<f32>) -> R) -> R {
     with_buf(&COL, f)
 }
@@ -137,87 +140,126 @@ pub(super) fn transpose_band(src: &[f32], c: usize, rs: usize, npx: usize, dst: 
     }
 }
 
-/// The im2col matrix of rows `r0..r1` of one sample `x` (`cin` planes of `h x w`) in the first
-/// `cin * k * k * (r1 - r0) * w` values of `col`: row `(ci, ky, kx)` holds
-/// `x[ci, y + ky - p, x + kx - p]` (zero outside) for each pixel of the band. Every one of those
-/// values is written (copied or zeroed), so the buffer is reused without clearing; it only grows.
+/// Rows `r0 - p .. r1 + p` of one sample `x` (`cin` planes of `h x w`, `p = k / 2`), each
+/// channel `k` times, shifted horizontally by `kx - p`, zero outside the image, in the first
+/// `cin * k * len` values of `buf`, `len = (r1 - r0 + k - 1) * w`: row `(ci, kx)` holds
+/// `x[ci, r0 - p + t, j + kx - p]` at `t * w + j`. Returns `len`.
+///
+/// For kernel row `ky`, what output pixel `q = (y - r0) * w + j` of the band takes from channel
+/// `ci` and column `kx` is at `(ci * k + kx) * len + ky * w + q`: the `k cin` rows of one `ky`
+/// are a uniform stride apart, so the convolution is `k` matrix products over `k cin` rows each,
+/// on a third of the copies of an im2col matrix's `k^2 cin` rows (12% of a training step).
+/// Every value is written (copied or zeroed), so the buffer is reused without clearing.
 #[allow(clippy::too_many_arguments)]
-pub(super) fn im2col(x: &[f32], cin: usize, h: usize, w: usize, k: usize, r0: usize, r1: usize, col: &mut Vec<f32>) {
+pub(super) fn shifted_band(x: &[f32], cin: usize, h: usize, w: usize, k: usize, r0: usize, r1: usize, buf: &mut Vec<f32>) -> usize {
     let p = (k / 2) as isize;
-    let npx = (r1 - r0) * w;
-    let need = cin * k * k * npx;
-    if col.len() < need {
-        col.resize(need, 0.0);
+    let len = (r1 - r0 + k - 1) * w;
+    if buf.len() < cin * k * len {
+        buf.resize(cin * k * len, 0.0);
     }
     for ci in 0..cin {
         let plane = &x[ci * h * w..(ci + 1) * h * w];
-        for ky in 0..k {
-            for kx in 0..k {
-                let row = &mut col[((ci * k + ky) * k + kx) * npx..][..npx];
-                let dx = kx as isize - p;
-                // dst[j] = src[j + dx] where 0 <= j + dx < w, zero elsewhere.
-                let lo = ((-dx).max(0) as usize).min(w);
-                let hi = ((w as isize - dx).min(w as isize).max(0) as usize).max(lo);
-                for y in r0..r1 {
-                    let dst = &mut row[(y - r0) * w..][..w];
-                    let sy = y as isize + ky as isize - p;
-                    if sy < 0 || sy >= h as isize {
-                        dst.fill(0.0);
-                        continue;
-                    }
-                    let src = &plane[sy as usize * w..][..w];
-                    dst[..lo].fill(0.0);
-                    dst[lo..hi].copy_from_slice(&src[(lo as isize + dx) as usize..(hi as isize + dx) as usize]);
-                    dst[hi..].fill(0.0);
+        for kx in 0..k {
+            let row = &mut buf[(ci * k + kx) * len..][..len];
+            let dx = kx as isize - p;
+            // dst[j] = src[j + dx] where 0 <= j + dx < w, zero elsewhere.
+            let lo = ((-dx).max(0) as usize).min(w);
+            let hi = ((w as isize - dx).min(w as isize).max(0) as usize).max(lo);
+            for (t, dst) in row.chunks_exact_mut(w).enumerate() {
+                let sy = (r0 + t) as isize - p;
+                if sy < 0 || sy >= h as isize {
+                    dst.fill(0.0);
+                    continue;
                 }
+                let src = &plane[sy as usize * w..][..w];
+                dst[..lo].fill(0.0);
+                dst[lo..hi].copy_from_slice(&src[(lo as isize + dx) as usize..(hi as isize + dx) as usize]);
+                dst[hi..].fill(0.0);
             }
         }
     }
+    len
+}
+
+/// `[cout, a, b, k]` to `[cout, b, a, k]`: the weights `[cout, cin, ky, kx]` in the order
+/// [`shifted_band`]'s products take them (`[cout, ky, cin, kx]`), and back.
+pub(super) fn swap_middle(wt: &[f32], cout: usize, a: usize, b: usize, k: usize) -> Vec<f32> {
+    let mut out = vec![0.0; wt.len()];
+    for co in 0..cout {
+        for i in 0..a {
+            for j in 0..b {
+                let src = &wt[((co * a + i) * b + j) * k..][..k];
+                out[((co * b + j) * a + i) * k..][..k].copy_from_slice(src);
+            }
+        }
+    }
+    out
+}
+
+/// Units of parallel work that a layer is cut into at least, where it can be: bands of rows, and
+/// where a small image has too few of those (one 128 x 128 patch at the U-Net's 8 x 8 level has
+/// one), blocks of output channels as well. Without them one core did those levels alone.
+const MIN_UNITS: usize = 8;
+
+/// Output channels per unit: all of them, unless `units` (sample, band) units are fewer than
+/// [`MIN_UNITS`]; then blocks of at least 32, as many as that takes (each copies its band again,
+/// a small cost beside the product where channels are many). A function of the sizes alone.
+fn channel_block(cout: usize, units: usize) -> usize {
+    let blocks = MIN_UNITS.div_ceil(units.max(1)).min((cout / 32).max(1));
+    cout.div_ceil(blocks)
 }
 
 /// `y = conv(x, weight) + bias`: stride 1, zero padding `k / 2`, `weight` as
-/// `[cout, cin, k, k]`. Units are (sample, band of rows), all cores.
+/// `[cout, cin, k, k]`. Units are (sample, band of rows, block of output channels), all cores.
 pub fn conv_forward(x: &T4, weight: &[f32], bias: Option<&[f32]>, cout: usize, k: usize) -> T4 {
     let (n, cin, h, w) = (x.n, x.c, x.h, x.w);
     let kk = cin * k * k;
     assert_eq!(weight.len(), cout * kk, "conv weight size");
     let hw = h * w;
-    let rows = band_rows(kk, h, w);
+    let rows = band_rows(cin * k, h, w);
     let nb = h.div_ceil(rows);
+    let cb = channel_block(cout, n * nb);
+    let nc = cout.div_ceil(cb);
+    let wp = if k == 1 { Vec::new() } else { swap_middle(weight, cout, cin, k, k) };
     // Not zeroed: the units below write every value (memset was 8% of a training step's profile).
     // Nothing reads it before `set_len`, and by then every value has been written.
     let len = n * cout * hw;
     let mut d: Vec<f32> = Vec::with_capacity(len);
     let yp = Ptr(d.as_mut_ptr());
-    (0..n * nb).into_par_iter().for_each(|u| {
+    (0..n * nb * nc).into_par_iter().for_each(|u| {
         // The whole Ptr (Send), not its raw field: closures capture fields separately.
         #[allow(clippy::redundant_locals)]
         let yp = yp;
-        let (s, r0) = (u / nb, (u % nb) * rows);
-        let r1 = (r0 + rows).min(h);
-        let npx = (r1 - r0) * w;
+        let (s, r0, c0) = (u / (nb * nc), (u / nc % nb) * rows, (u % nc) * cb);
+        let (r1, c1) = ((r0 + rows).min(h), (c0 + cb).min(cout));
+        let (npx, m) = ((r1 - r0) * w, c1 - c0);
         let xs = x.sample(s);
-        // SAFETY: each unit writes rows r0..r1 of sample s of every output channel only.
+        // SAFETY: each unit writes rows r0..r1 of sample s of output channels c0..c1 only.
         unsafe {
-            let dst = yp.0.add(s * cout * hw + r0 * w);
+            let dst = yp.0.add((s * cout + c0) * hw + r0 * w);
             if k == 1 {
-                mm(cout, npx, cin, dst, hw, false, weight.as_ptr(), cin, 1, xs.as_ptr().add(r0 * w), hw, 1);
+                mm(m, npx, cin, dst, hw, false, weight.as_ptr().add(c0 * cin), cin, 1, xs.as_ptr().add(r0 * w), hw, 1);
             } else {
-                with_col(|col| {
-                    im2col(xs, cin, h, w, k, r0, r1, col);
-                    mm(cout, npx, kk, dst, hw, false, weight.as_ptr(), kk, 1, col.as_ptr(), npx, 1);
+                with_col(|buf| {
+                    let stride = shifted_band(xs, cin, h, w, k, r0, r1, buf);
+                    // Per kernel row: rows (ci, kx) of the band, a uniform `stride` apart, from
+                    // `ky` rows down; the weights' (ci, kx) block of that row.
+                    for ky in 0..k {
+                        let (a, b) = (wp.as_ptr().add(c0 * kk + ky * cin * k), buf.as_ptr().add(ky * w));
+                        mm(m, npx, cin * k, dst, hw, ky > 0, a, kk, 1, b, stride, 1);
+                    }
                 });
             }
             if let Some(b) = bias {
-                for (co, &bv) in b.iter().enumerate() {
+                for (co, &bv) in b[c0..c1].iter().enumerate() {
                     let row = std::slice::from_raw_parts_mut(dst.add(co * hw), npx);
                     row.iter_mut().for_each(|v| *v += bv);
                 }
             }
         }
     });
-    // SAFETY: the (sample, band) units cover every sample and every row 0..h, and `mm` without
-    // `acc` writes all `cout` channels of a unit's rows (gemm does not read dst then).
+    // SAFETY: the units cover every sample, every row 0..h and every channel 0..cout, and `mm`
+    // without `acc` writes all of a unit's values (gemm does not read dst then).
     unsafe { d.set_len(len) };
     T4 { n, c: cout, h, w, d }
 }
@@ -245,18 +287,19 @@ pub fn conv_backward_input(dy: &T4, weight: &[f32], cin: usize, k: usize) -> T4 
 
 /// Gradient of the convolution's weight `[cout, cin, k, k]`: per sample, summed in sample order.
 ///
-/// Per band of rows, `G^T[kk x cout] += col[kk x px] * dy^T[px x cout]` with the band of `dy`
-/// first copied pixel-major. Both `dy` and the im2col matrix run along pixels, the product's
+/// Per band of rows and kernel row `ky`, `G^T[(ci, kx) x cout] += S_ky[(ci, kx) x px] *
+/// dy^T[px x cout]`, with `S_ky` the rows of [`shifted_band`] for that `ky` and the band of `dy`
+/// first copied pixel-major. Both `dy` and the input's band run along pixels, the product's
 /// inner dimension; gemm wants the operand it packs into its micro-panels to run along the
-/// output's contiguous dimension, so given `dy` (or `col`) as they are it packs them with a
+/// output's contiguous dimension, so given `dy` (or the input) as they are it packs them with a
 /// strided gather, which cost more than the products themselves (11% of a U-Net 16 training
-/// step against 6%). `dy`'s band is 9 cin / cout times smaller than the im2col matrix, so it is
-/// the one transposed, once, by [`transpose_band`]; `G^T` is transposed back at the end.
+/// step against 6%). `dy`'s band is the smaller, so it is the one transposed, once, by
+/// [`transpose_band`]; `G^T` is transposed and its rows put back in (ci, ky, kx) order at the end.
 pub fn conv_backward_weight(x: &T4, dy: &T4, k: usize) -> Vec<f32> {
     let (n, cin, h, w, cout) = (x.n, x.c, x.h, x.w, dy.c);
     let kk = cin * k * k;
     let hw = h * w;
-    let rows = band_rows(kk, h, w);
+    let rows = band_rows(cin * k, h, w);
     let partials: Vec<Vec<f32>> = (0..n)
         .into_par_iter()
         .map(|s| {
@@ -269,14 +312,18 @@ pub fn conv_backward_weight(x: &T4, dy: &T4, k: usize) -> Vec<f32> {
                 with_buf(&BAND_T, |dyt| {
                     transpose_band(&dys[r0 * w..], cout, hw, npx, dyt);
                     // SAFETY: gt is kk x cout; dyt holds npx x cout; x's band is cin rows of
-                    // npx at stride hw, the im2col band kk rows of npx.
+                    // npx at stride hw, the shifted band cin k rows of `stride`.
                     unsafe {
                         if k == 1 {
                             mm(kk, cout, npx, gt.as_mut_ptr(), cout, true, xs.as_ptr().add(r0 * w), hw, 1, dyt.as_ptr(), cout, 1);
                         } else {
-                            with_col(|col| {
-                                im2col(xs, cin, h, w, k, r0, r1, col);
-                                mm(kk, cout, npx, gt.as_mut_ptr(), cout, true, col.as_ptr(), npx, 1, dyt.as_ptr(), cout, 1);
+                            with_col(|buf| {
+                                let stride = shifted_band(xs, cin, h, w, k, r0, r1, buf);
+                                // G^T's rows in the order (ky, ci, kx), one block per ky.
+                                for ky in 0..k {
+                                    let g = gt.as_mut_ptr().add(ky * cin * k * cout);
+                                    mm(cin * k, cout, npx, g, cout, true, buf.as_ptr().add(ky * w), stride, 1, dyt.as_ptr(), cout, 1);
+                                }
                             });
                         }
                     }
@@ -286,10 +333,15 @@ pub fn conv_backward_weight(x: &T4, dy: &T4, k: usize) -> Vec<f32> {
             gt
         })
         .collect();
-    // G[co, i] = G^T[i, co]: G^T's kk rows of cout values, written column-major.
+    // G[co, i] = G^T[i, co]: G^T's kk rows of cout values, written column-major; then from
+    // (ky, ci, kx) back to (ci, ky, kx).
     let mut g = Vec::new();
     transpose_band(&sum_in_order(partials), kk, cout, cout, &mut g);
-    g
+    if k == 1 {
+        g
+    } else {
+        swap_middle(&g, cout, k, cin, k)
+    }
 }
 
 pub(super) fn sum_in_order(partials: Vec<Vec<f32>>) -> Vec<f32> {

@@ -1,5 +1,5 @@
 //! The CPU fast path: the same two networks as [`super::Net`], forward and backward written out
-//! as im2col + matrix products (the `gemm` crate) on all cores (rayon).
+//! as shifted copies + matrix products (the `gemm` crate) on all cores (rayon).
 //!
 //! Why it exists: burn 0.22's CPU backend (flex) computes a convolution's weight gradient with a
 //! nearly scalar loop for small batches and its input gradient through a col2im scatter, so a
@@ -19,7 +19,7 @@
 //! same weights with any number of threads.
 //!
 //! Files: `tensor.rs` (the `[n, c, h, w]` tensor and its copies: pad, crop, cat, split),
-//! `kernels.rs` (matrix products, im2col, convolutions and their gradients, pooling; all the raw
+//! `kernels.rs` (matrix products, shifted bands, convolutions and their gradients, pooling; all the raw
 //! pointer work), `layers.rs` (convolution, conv + BatchNorm + activation, the transposed
 //! convolution, each with its backward pass), `net.rs` (the U-Net and the shallow model),
 //! `optim.rs` (Huber loss and Adam) and `tests.rs` (each against burn).
