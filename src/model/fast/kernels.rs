@@ -140,6 +140,50 @@ pub(super) fn transpose_band(src: &[f32], c: usize, rs: usize, npx: usize, dst: 
     }
 }
 
+/// The im2col matrix of rows `r0..r1` of one sample `x` (`cin` planes of `h x w`): row
+/// `(ci, ky, kx)` holds `x[ci, y + ky - p, j + kx - p]` (zero outside the image) at
+/// `(y - r0) * w + j`, in the first `cin * k^2 * (r1 - r0) * w` values of `col`. Every value is
+/// written (copied or zeroed), so the buffer is reused without clearing.
+#[allow(clippy::too_many_arguments)]
+fn im2col(x: &[f32], cin: usize, h: usize, w: usize, k: usize, r0: usize, r1: usize, col: &mut Vec<f32>) {
+    let p = (k / 2) as isize;
+    let npx = (r1 - r0) * w;
+    if col.len() < cin * k * k * npx {
+        col.resize(cin * k * k * npx, 0.0);
+    }
+    for ci in 0..cin {
+        let plane = &x[ci * h * w..(ci + 1) * h * w];
+        for ky in 0..k {
+            for kx in 0..k {
+                let row = &mut col[((ci * k + ky) * k + kx) * npx..][..npx];
+                let dx = kx as isize - p;
+                let (lo, hi) = shift_span(w, dx);
+                for (dst, y) in row.chunks_exact_mut(w).zip(r0..r1) {
+                    let sy = y as isize + ky as isize - p;
+                    if sy < 0 || sy >= h as isize {
+                        dst.fill(0.0);
+                    } else {
+                        shift_row(&plane[sy as usize * w..][..w], dx, lo, hi, dst);
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The span `lo..hi` of a row of `w` where `dst[j] = src[j + dx]` lands inside the source row.
+fn shift_span(w: usize, dx: isize) -> (usize, usize) {
+    let lo = ((-dx).max(0) as usize).min(w);
+    (lo, ((w as isize - dx).min(w as isize).max(0) as usize).max(lo))
+}
+
+/// `dst[j] = src[j + dx]` on `lo..hi` (from [`shift_span`]), zero elsewhere.
+fn shift_row(src: &[f32], dx: isize, lo: usize, hi: usize, dst: &mut [f32]) {
+    dst[..lo].fill(0.0);
+    dst[lo..hi].copy_from_slice(&src[(lo as isize + dx) as usize..(hi as isize + dx) as usize]);
+    dst[hi..].fill(0.0);
+}
+
 /// Rows `r0 - p .. r1 + p` of one sample `x` (`cin` planes of `h x w`, `p = k / 2`), each
 /// channel `k` times, shifted horizontally by `kx - p`, zero outside the image, in the first
 /// `cin * k * len` values of `buf`, `len = (r1 - r0 + k - 1) * w`: row `(ci, kx)` holds
@@ -162,19 +206,14 @@ pub(super) fn shifted_band(x: &[f32], cin: usize, h: usize, w: usize, k: usize, 
         for kx in 0..k {
             let row = &mut buf[(ci * k + kx) * len..][..len];
             let dx = kx as isize - p;
-            // dst[j] = src[j + dx] where 0 <= j + dx < w, zero elsewhere.
-            let lo = ((-dx).max(0) as usize).min(w);
-            let hi = ((w as isize - dx).min(w as isize).max(0) as usize).max(lo);
+            let (lo, hi) = shift_span(w, dx);
             for (t, dst) in row.chunks_exact_mut(w).enumerate() {
                 let sy = (r0 + t) as isize - p;
                 if sy < 0 || sy >= h as isize {
                     dst.fill(0.0);
-                    continue;
+                } else {
+                    shift_row(&plane[sy as usize * w..][..w], dx, lo, hi, dst);
                 }
-                let src = &plane[sy as usize * w..][..w];
-                dst[..lo].fill(0.0);
-                dst[lo..hi].copy_from_slice(&src[(lo as isize + dx) as usize..(hi as isize + dx) as usize]);
-                dst[hi..].fill(0.0);
             }
         }
     }
@@ -201,13 +240,37 @@ pub(super) fn swap_middle(wt: &[f32], cout: usize, a: usize, b: usize, k: usize)
 /// one), blocks of output channels as well. Without them one core did those levels alone.
 const MIN_UNITS: usize = 8;
 
-/// Output channels per unit: all of them, unless `units` (sample, band) units are fewer than
-/// [`MIN_UNITS`]; then blocks of at least 32, as many as that takes (each copies its band again,
-/// a small cost beside the product where channels are many). A function of the sizes alone.
-fn channel_block(cout: usize, units: usize) -> usize {
-    let blocks = MIN_UNITS.div_ceil(units.max(1)).min((cout / 32).max(1));
-    cout.div_ceil(blocks)
+/// Pixels a band keeps at least when it is cut for more units: the matrix product runs 64
+/// pixels at a time (gemm's AVX-512 micro-kernel is 64 x 6), and a band under 128 pixels
+/// leaves much of it idle.
+const MIN_BAND_PX: usize = 128;
+
+/// Output channels a block keeps at least: each block packs its band again for gemm, so blocks
+/// of 32 channels packed the band of U-Net 32's 16 x 16 level eight times and made its forward
+/// pass 10% slower than no blocks at all.
+const MIN_BLOCK: usize = 64;
+
+/// (rows per band, output channels per block) of a convolution's forward units: bands of
+/// [`band_rows`] for products of inner size `kin`; where (sample, band) units are fewer than
+/// [`MIN_UNITS`], bands halved while they keep [`MIN_BAND_PX`] pixels, then blocks of output
+/// channels of at least [`MIN_BLOCK`], as many as that takes. A function of the sizes alone, so
+/// the same for any thread count.
+fn forward_units(n: usize, kin: usize, cout: usize, h: usize, w: usize) -> (usize, usize) {
+    let mut rows = band_rows(kin, h, w);
+    while n * h.div_ceil(rows) < MIN_UNITS && rows > 1 && (rows / 2) * w >= MIN_BAND_PX {
+        rows /= 2;
+    }
+    let units = n * h.div_ceil(rows);
+    let blocks = MIN_UNITS.div_ceil(units).min((cout / MIN_BLOCK).max(1));
+    (rows, cout.div_ceil(blocks))
 }
+
+/// Inner size `cin * k` from which a convolution takes an im2col matrix and one product
+/// (inner size `cin * k^2`) instead of [`shifted_band`]'s `k` products: on the deep levels'
+/// wide channels and small images (256 channels at 16 x 16, 512 at 8 x 8) the `k` accumulating
+/// products of a 768-deep inner size ran 1.4 to 1.7x slower than one of 2304 (U-Net 32's
+/// forward pass 10% slower); at 128 channels and below the shifted band is 3 to 7% faster.
+const IM2COL_FROM: usize = 768;
 
 /// `y = conv(x, weight) + bias`: stride 1, zero padding `k / 2`, `weight` as
 /// `[cout, cin, k, k]`. Units are (sample, band of rows, block of output channels), all cores.
@@ -216,11 +279,11 @@ pub fn conv_forward(x: &T4, weight: &[f32], bias: Option<&[f32]>, cout: usize, k
     let kk = cin * k * k;
     assert_eq!(weight.len(), cout * kk, "conv weight size");
     let hw = h * w;
-    let rows = band_rows(cin * k, h, w);
+    let by_col = k > 1 && cin * k >= IM2COL_FROM;
+    let (rows, cb) = forward_units(n, if by_col { kk } else { cin * k }, cout, h, w);
     let nb = h.div_ceil(rows);
-    let cb = channel_block(cout, n * nb);
     let nc = cout.div_ceil(cb);
-    let wp = if k == 1 { Vec::new() } else { swap_middle(weight, cout, cin, k, k) };
+    let wp = if k == 1 || by_col { Vec::new() } else { swap_middle(weight, cout, cin, k, k) };
     // Not zeroed: the units below write every value (memset was 8% of a training step's profile).
     // Nothing reads it before `set_len`, and by then every value has been written.
     let len = n * cout * hw;
@@ -239,6 +302,11 @@ pub fn conv_forward(x: &T4, weight: &[f32], bias: Option<&[f32]>, cout: usize, k
             let dst = yp.0.add((s * cout + c0) * hw + r0 * w);
             if k == 1 {
                 mm(m, npx, cin, dst, hw, false, weight.as_ptr().add(c0 * cin), cin, 1, xs.as_ptr().add(r0 * w), hw, 1);
+            } else if by_col {
+                with_col(|col| {
+                    im2col(xs, cin, h, w, k, r0, r1, col);
+                    mm(m, npx, kk, dst, hw, false, weight.as_ptr().add(c0 * kk), kk, 1, col.as_ptr(), npx, 1);
+                });
             } else {
                 with_col(|buf| {
                     let stride = shifted_band(xs, cin, h, w, k, r0, r1, buf);

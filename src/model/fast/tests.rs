@@ -42,11 +42,17 @@ fn burn_conv(conv: &Conv2d, x: &T4, g: &T4) -> (Vec<f32>, Vec<f32>, Vec<f32>, Op
 
 #[test]
 fn convolution_matches_burn_forward_and_both_gradients() {
-    // (batch, cin, cout, h, w, kernel, bias): odd sizes, batch 1 and 5.
-    for (i, &(n, cin, cout, h, w, k, bias)) in
-        [(1, 3, 16, 17, 23, 3, false), (5, 32, 16, 9, 14, 3, false), (2, 16, 3, 12, 7, 1, true), (1, 8, 3, 5, 6, 3, true)]
-            .iter()
-            .enumerate()
+    // (batch, cin, cout, h, w, kernel, bias): odd sizes, batch 1 and 5; the last is wide enough
+    // (256 channels in and out) that the forward pass and the input gradient take the im2col path.
+    for (i, &(n, cin, cout, h, w, k, bias)) in [
+        (1, 3, 16, 17, 23, 3, false),
+        (5, 32, 16, 9, 14, 3, false),
+        (2, 16, 3, 12, 7, 1, true),
+        (1, 8, 3, 5, 6, 3, true),
+        (2, 256, 256, 7, 9, 3, true),
+    ]
+    .iter()
+    .enumerate()
     {
         let mut cfg = Conv2dConfig::new([cin, cout], [k, k]).with_bias(bias);
         if k == 3 {
