@@ -269,7 +269,7 @@ fn forward_units(n: usize, kin: usize, cout: usize, h: usize, w: usize) -> (usiz
 /// (inner size `cin * k^2`) instead of [`shifted_band`]'s `k` products: on the deep levels'
 /// wide channels and small images (256 channels at 16 x 16, 512 at 8 x 8) the `k` accumulating
 /// products of a 768-deep inner size ran 1.4 to 1.7x slower than one of 2304 (U-Net 32's
-/// forward pass 10% slower); at 128 channels and below the shifted band is 3 to 7% faster.
+/// forward pass 10% slower); at 128 channels and below the shifted band is 3 to 8% faster.
 const IM2COL_FROM: usize = 768;
 
 /// `y = conv(x, weight) + bias`: stride 1, zero padding `k / 2`, `weight` as

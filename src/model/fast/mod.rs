@@ -1,5 +1,6 @@
 //! The CPU fast path: the same two networks as [`super::Net`], forward and backward written out
-//! as shifted copies + matrix products (the `gemm` crate) on all cores (rayon).
+//! as shifted copies (im2col for the widest layers) + matrix products (the `gemm` crate) on all
+//! cores (rayon).
 //!
 //! Why it exists: burn 0.22's CPU backend (flex) computes a convolution's weight gradient with a
 //! nearly scalar loop for small batches and its input gradient through a col2im scatter, so a
