@@ -466,6 +466,8 @@ struct TileWork {
     acc: Vec<Complex32>,
     /// A strip of inverse-transformed rows (`STRIP x wp`).
     back: Vec<f32>,
+    /// The N frames' linear rows of a strip's row, side by side (N x the region's width).
+    frame_rows: Vec<f32>,
 }
 
 impl TileWork {
@@ -476,6 +478,7 @@ impl TileWork {
             cols: (0..ranks).map(|_| vec![Complex32::new(0.0, 0.0); wc * hp]).collect(),
             acc: vec![Complex32::new(0.0, 0.0); wc * hp],
             back: vec![0.0f32; STRIP * wp],
+            frame_rows: Vec::new(),
         }
     }
 }
@@ -510,61 +513,61 @@ fn blur_tile(
     let (ex, ey) = (x0 - m as isize, y0 - m as isize);
     let span = if ex >= 0 && ex as usize + ew <= fw { Cols::From(ex as usize) } else { Cols::Mirror(ex) };
     let src_px = ((ex.max(0) as usize).min(fw), ((ex + ew as isize).max(0) as usize).min(fw));
-    let mut rows = vec![0.0f32; frames.len() * ew];
-    {
-        let ranks = factors[c].basis.len();
-        let a = coefficients(&factors[c]);
-        let src = RowSource { frames, c, span, px: src_px };
-        // Rows: combined, transformed and scattered a strip at a time.
-        for s0 in (0..hp).step_by(STRIP) {
-            let ns = STRIP.min(hp - s0);
-            let mut outs: Vec<&mut [f32]> = tw.lines[..ranks].iter_mut().map(|l| &mut l[..ns * wp]).collect();
-            for i in 0..ns {
-                let ly = s0 + i;
-                if ly < eh {
-                    let sy = reflect(ey + ly as isize, fh);
-                    let ahead = (ly + PREFETCH_ROWS < eh).then(|| reflect(ey + (ly + PREFETCH_ROWS) as isize, fh));
-                    src.combined_row(sy, ahead, &mut rows, &a, &mut outs, i * wp, wp);
-                } else {
-                    outs.iter_mut().for_each(|o| o[i * wp..(i + 1) * wp].fill(0.0));
-                }
-            }
-            for (line, col) in tw.lines[..ranks].iter_mut().zip(&mut tw.cols) {
-                conv.forward_rows(&mut line[..ns * wp], col, s0);
+    // The N frames' rows of the region, side by side (kept by the worker: no allocation per task).
+    let rows = &mut tw.frame_rows;
+    rows.resize(frames.len() * ew, 0.0);
+    let ranks = factors[c].basis.len();
+    let a = coefficients(&factors[c]);
+    let src = RowSource { frames, c, span, px: src_px };
+    // Rows: combined, transformed and scattered a strip at a time.
+    for s0 in (0..hp).step_by(STRIP) {
+        let ns = STRIP.min(hp - s0);
+        let mut outs: Vec<&mut [f32]> = tw.lines[..ranks].iter_mut().map(|l| &mut l[..ns * wp]).collect();
+        for i in 0..ns {
+            let ly = s0 + i;
+            if ly < eh {
+                let sy = reflect(ey + ly as isize, fh);
+                let ahead = (ly + PREFETCH_ROWS < eh).then(|| reflect(ey + (ly + PREFETCH_ROWS) as isize, fh));
+                src.combined_row(sy, ahead, rows, &a, &mut outs, i * wp, wp);
+            } else {
+                outs.iter_mut().for_each(|o| o[i * wp..(i + 1) * wp].fill(0.0));
             }
         }
-        // Columns: forward, times the basis spectrum, summed over the ranks, inverse.
-        for j0 in (0..wc).step_by(COLUMN_GROUP) {
-            let g = j0 * hp..(j0 + COLUMN_GROUP).min(wc) * hp;
-            let acc = &mut tw.acc[g.clone()];
-            for (r, col) in tw.cols[..ranks].iter_mut().enumerate() {
-                let col = &mut col[g.clone()];
-                conv.columns(col, false);
-                match &spectra.real[c][r] {
-                    Some(k) => mul_real(acc, col, &k[g.clone()], r > 0),
-                    None => {
-                        let k = &spectra.full[c][r][g.clone()];
-                        if r == 0 {
-                            acc.iter_mut().zip(col.iter()).zip(k).for_each(|((o, v), k)| *o = v * k);
-                        } else {
-                            acc.iter_mut().zip(col.iter()).zip(k).for_each(|((o, v), k)| *o += v * k);
-                        }
+        for (line, col) in tw.lines[..ranks].iter_mut().zip(&mut tw.cols) {
+            conv.forward_rows(&mut line[..ns * wp], col, s0);
+        }
+    }
+    // Columns: forward, times the basis spectrum, summed over the ranks, inverse.
+    for j0 in (0..wc).step_by(COLUMN_GROUP) {
+        let g = j0 * hp..(j0 + COLUMN_GROUP).min(wc) * hp;
+        let acc = &mut tw.acc[g.clone()];
+        for (r, col) in tw.cols[..ranks].iter_mut().enumerate() {
+            let col = &mut col[g.clone()];
+            conv.columns(col, false);
+            match &spectra.real[c][r] {
+                Some(k) => mul_real(acc, col, &k[g.clone()], r > 0),
+                None => {
+                    let k = &spectra.full[c][r][g.clone()];
+                    if r == 0 {
+                        acc.iter_mut().zip(col.iter()).zip(k).for_each(|((o, v), k)| *o = v * k);
+                    } else {
+                        acc.iter_mut().zip(col.iter()).zip(k).for_each(|((o, v), k)| *o += v * k);
                     }
                 }
             }
-            conv.columns(acc, true);
         }
-        // The region's rows back to the image domain.
-        let mut out = Vec::with_capacity(rw * rh);
-        for s0 in (m..m + rh).step_by(STRIP) {
-            let ns = STRIP.min(m + rh - s0);
-            conv.inverse_rows(&tw.acc, s0, &mut tw.back[..ns * wp]);
-            for row in tw.back[..ns * wp].chunks_exact(wp) {
-                out.extend_from_slice(&row[m..m + rw]);
-            }
-        }
-        out
+        conv.columns(acc, true);
     }
+    // The region's rows back to the image domain.
+    let mut out = Vec::with_capacity(rw * rh);
+    for s0 in (m..m + rh).step_by(STRIP) {
+        let ns = STRIP.min(m + rh - s0);
+        conv.inverse_rows(&tw.acc, s0, &mut tw.back[..ns * wp]);
+        for row in tw.back[..ns * wp].chunks_exact(wp) {
+            out.extend_from_slice(&row[m..m + rw]);
+        }
+    }
+    out
 }
 
 /// The combined images' inner loop: `rows` holds the N frames' rows (N x `ew`) and `a` the
