@@ -85,9 +85,18 @@ impl Blurrer {
             )),
         };
         let threads = pool.as_ref().map_or_else(rayon::current_num_threads, |p| p.current_num_threads());
-        let factors = std::array::from_fn(|c| {
-            let rendered: Vec<Vec<f32>> = kernels.iter().map(|k| k.render(c, margin)).collect();
-            factorise_within(&rendered, max_error)
+        // The three channels' factorisations side by side (each is independent).
+        let factors = install(&pool, || {
+            use rayon::prelude::*;
+            let f: Vec<LowRank> = (0..3)
+                .into_par_iter()
+                .map(|c| {
+                    let rendered: Vec<Vec<f32>> = kernels.iter().map(|k| k.render(c, margin)).collect();
+                    factorise_within(&rendered, max_error)
+                })
+                .collect();
+            let Ok(f) = <[LowRank; 3]>::try_from(f) else { unreachable!("three channels") };
+            f
         });
         Ok(Blurrer {
             camera,
