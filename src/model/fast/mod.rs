@@ -22,7 +22,8 @@
 //! Files: `tensor.rs` (the `[n, c, h, w]` tensor and its copies: pad, crop, cat, split),
 //! `kernels.rs` (matrix products, shifted bands, convolutions and their gradients, pooling; all the raw
 //! pointer work), `layers.rs` (convolution, conv + BatchNorm + activation, the transposed
-//! convolution, each with its backward pass), `net.rs` (the U-Net and the shallow model),
+//! convolution, each with its backward pass), `winograd.rs` (Winograd F(2x2, 3x3) convolutions
+//! for the inference forward pass), `net.rs` (the U-Net and the shallow model),
 //! `optim.rs` (Huber loss and Adam) and `tests.rs` (each against burn).
 
 mod kernels;
@@ -32,6 +33,7 @@ mod optim;
 mod tensor;
 #[cfg(test)]
 mod tests;
+mod winograd;
 
 use super::Net;
 use burn::module::Param;
