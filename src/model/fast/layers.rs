@@ -62,9 +62,10 @@ impl Conv {
         }
         z
     }
-    /// Training: the direct convolution, whose gradients are tested against burn's.
+    /// Training: as [`Conv::forward`] (Winograd where it is worth it), keeping the input for
+    /// the backward pass.
     pub(super) fn forward_train(&mut self, x: Arc<T4>) -> T4 {
-        let y = conv_forward(&x, &self.w, self.b.as_deref(), self.cout, self.k);
+        let y = self.forward(&x);
         self.x = Some(x);
         y
     }
@@ -76,7 +77,16 @@ impl Conv {
         if self.b.is_some() {
             self.gb.iter_mut().zip(channel_sums(dy)).for_each(|(a, b)| *a += b);
         }
-        need_dx.then(|| conv_backward_input(dy, &self.w, self.cin, self.k))
+        need_dx.then(|| {
+            // The input gradient is the forward convolution of `dy` with the flipped, transposed
+            // weights (`cout` inputs, `cin` outputs): Winograd where that is worth it.
+            if self.k == 3 && winograd::worth_it(self.cout, self.cin, dy.h, dy.w) {
+                let u = winograd::weights(&flip_transpose(&self.w, self.cout, self.cin, 3), self.cin, self.cout);
+                winograd::conv3x3(dy, &u, None, self.cin, None)
+            } else {
+                conv_backward_input(dy, &self.w, self.cin, self.k)
+            }
+        })
     }
     pub(super) fn params(&mut self, f: &mut dyn FnMut(&mut [f32], &mut [f32])) {
         self.wino.take();

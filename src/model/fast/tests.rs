@@ -159,6 +159,14 @@ fn shallow_gradients_match_burn() {
 }
 
 #[test]
+fn gradients_match_burn_where_winograd_takes_the_forward_and_input_gradient() {
+    // 16 channels on at least 8 x 8 blocks: the layers take `winograd::conv3x3` (odd sides too).
+    assert!(winograd::worth_it(16, 16, 17, 18) && winograd::worth_it(16, 16, 32, 32));
+    network_gradients_match(crate::model::Arch::Shallow { width: 16 }, 1, 17, 18);
+    network_gradients_match(crate::model::Arch::Unet { base: 16 }, 1, 32, 32);
+}
+
+#[test]
 fn unet_gradients_match_burn_including_padding() {
     network_gradients_match(crate::model::Arch::Unet { base: 4 }, 2, 32, 32);
     network_gradients_match(crate::model::Arch::Unet { base: 4 }, 1, 20, 35);

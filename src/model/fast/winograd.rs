@@ -1,14 +1,15 @@
-//! Winograd F(2x2, 3x3) convolutions for inference (Lavin and Gray, "Fast Algorithms for
-//! Convolutional Neural Networks", 2016): each 2 x 2 block of outputs is computed from a 4 x 4
-//! block of inputs with 16 multiplications per (input, output) channel pair instead of 36. The
-//! input blocks and the weights are transformed (`V = B^T d B`, `U = G g G^T`), the 16 positions
-//! of those 4 x 4 transforms are 16 independent matrix products over the channels
+//! Winograd F(2x2, 3x3) convolutions (Lavin and Gray, "Fast Algorithms for Convolutional
+//! Neural Networks", 2016): each 2 x 2 block of outputs is computed from a 4 x 4 block of
+//! inputs with 16 multiplications per (input, output) channel pair instead of 36. The input
+//! blocks and the weights are transformed (`V = B^T d B`, `U = G g G^T`), the 16 positions of
+//! those 4 x 4 transforms are 16 independent matrix products over the channels
 //! (`M[xi] = U[xi] V[xi]`), and each output block is `A^T M A`.
 //!
-//! Only the inference forward pass takes it ([`super::Conv::forward`]): training keeps the
-//! direct convolution, so its tests against burn and its weights are untouched. The results
-//! differ from the direct convolution by float rounding only (the transforms add and subtract,
-//! and halve in `G`): a few units in the last place of the largest values (test below).
+//! The forward pass (inference and training) and the input gradient take it on the layers
+//! [`worth_it`] accepts; the weight gradient stays the direct product. The results differ from
+//! the direct convolution by float rounding only (the transforms add and subtract, and halve
+//! in `G`): tested against it here, and whole networks' gradients against burn's
+//! (`tests.rs`). Deterministic: units depend on the sizes alone.
 
 use super::kernels::{mm, Ptr};
 use super::T4;
