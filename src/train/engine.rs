@@ -37,7 +37,7 @@ pub(super) fn evaluate_with(
 pub(super) enum Engine {
     /// burn's autodiff (the reference path; the GPU path with the `wgpu`/`cuda` features).
     Burn { device: Device, model: Net, optim: burn::optim::ModuleOptimizer, huber: burn::nn::loss::HuberLoss },
-    /// `src/model/fast.rs`; `template` carries the parameter ids the checkpoints are written with.
+    /// `src/model/fast/`; `template` carries the parameter ids the checkpoints are written with.
     Fast { net: Box<FastNet>, adam: Adam, template: Net },
 }
 

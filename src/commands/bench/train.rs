@@ -133,7 +133,7 @@ pub(super) fn time_burn(arch: crate::model::Arch, batch: usize, repeats: usize) 
     (steps, fwd)
 }
 
-/// The same with the CPU fast path (`src/model/fast.rs`).
+/// The same with the CPU fast path (`src/model/fast/`).
 pub(super) fn time_fast(arch: crate::model::Arch, batch: usize, repeats: usize) -> (Vec<f64>, Vec<f64>) {
     use crate::model::fast::{train_step, Adam, FastNet};
     let mut net = FastNet::from_net(&crate::model::Net::seeded(arch, &burn::tensor::Device::flex(), 7));
