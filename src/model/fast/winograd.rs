@@ -379,6 +379,29 @@ mod tests {
     }
 
     #[test]
+    fn the_vector_builds_of_the_transforms_give_the_baseline_builds_bits() {
+        // `transform_*` run the AVX-512 (or AVX2) build where the CPU has it; `*_body` called
+        // directly is the baseline x86-64 build. Odd sides, two bands, a bias and a post.
+        let (cin, m, h, w) = (5, 3, 11, 13);
+        let x = values(cin * h * w, 12);
+        let (tw, th) = (w.div_ceil(2), h.div_ceil(2));
+        let (b0, b1) = (1, th);
+        let t = (b1 - b0) * tw;
+        let (mut fast, mut plain) = (vec![0.0f32; 16 * cin * t], vec![0.0f32; 16 * cin * t]);
+        transform_inputs(&x, cin, h, w, b0, b1, &mut fast);
+        inputs_body(&x, cin, h, w, b0, b1, &mut plain);
+        assert_eq!(fast, plain);
+        let prod = values(16 * m * t, 13);
+        let bias = values(m, 14);
+        let post = Post { scale: values(4, 15), shift: values(4, 16), slope: 0.2 };
+        let (mut fast, mut plain) = (vec![0.0f32; m * h * w], vec![0.0f32; m * h * w]);
+        transform_outputs(&prod, (m, t), (h, w), (b0, b1), Some(&bias), Some((&post, 1)), &mut fast);
+        outputs_body(&prod, (m, t), (h, w), (b0, b1), Some(&bias), Some((&post, 1)), &mut plain);
+        assert_eq!(fast, plain);
+        assert!(fast[2 * w..].iter().any(|&v| v != 0.0), "rows of the bands were written");
+    }
+
+    #[test]
     fn winograd_results_do_not_depend_on_the_thread_count() {
         let x = T4::new(1, 32, 16, 16, values(32 * 256, 4));
         let u = weights(&values(128 * 32 * 9, 5), 128, 32);
