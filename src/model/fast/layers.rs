@@ -11,8 +11,8 @@ pub struct Conv {
     pub(super) gw: Vec<f32>,
     pub(super) gb: Vec<f32>,
     pub(super) x: Option<Arc<T4>>,
-    /// The Winograd transform of `w` for inference ([`winograd::weights`]), made on first use
-    /// and dropped whenever `params` hands `w` out to be changed.
+    /// The Winograd transform of `w` ([`winograd::weights`]) for the forward pass, made on first
+    /// use and dropped whenever `params` hands `w` out to be changed.
     pub(super) wino: std::sync::OnceLock<Vec<f32>>,
 }
 
@@ -40,8 +40,8 @@ impl Conv {
             *p = Param::initialized(p.id, tensor(b, [self.cout], &p.val().device()));
         }
     }
-    /// Inference: 3 x 3 layers wide enough take Winograd's F(2x2, 3x3) (a third fewer
-    /// operations than the direct convolution, the same values up to float rounding).
+    /// `conv(x) + bias`: 3 x 3 layers wide enough take Winograd's F(2x2, 3x3) (16 multiplications
+    /// where the direct convolution does 36; the same values up to float rounding).
     pub(super) fn forward(&self, x: &T4) -> T4 {
         self.forward_then(x, None)
     }

@@ -23,7 +23,7 @@
 //! `kernels.rs` (matrix products, shifted bands, convolutions and their gradients, pooling; all the raw
 //! pointer work), `layers.rs` (convolution, conv + BatchNorm + activation, the transposed
 //! convolution, each with its backward pass), `winograd.rs` (Winograd F(2x2, 3x3) convolutions
-//! for the inference forward pass), `net.rs` (the U-Net and the shallow model),
+//! for the forward pass and the input gradient), `net.rs` (the U-Net and the shallow model),
 //! `optim.rs` (Huber loss and Adam) and `tests.rs` (each against burn).
 
 mod kernels;

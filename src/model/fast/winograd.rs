@@ -63,7 +63,8 @@ pub static OFF: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::n
 /// Input and output channels a layer needs at least for [`worth_it`].
 const MIN_CHANNELS: usize = 16;
 
-/// Floats a unit's transformed inputs (`16 x cin x tiles`) may take: 1 MiB, cache-sized.
+/// Floats a unit's transformed inputs (`16 x cin x blocks`) may take: 256 KiB, within the
+/// second-level cache (1 MiB units were no faster, and slower at 256 channels on 16 x 16).
 const UNIT_FLOATS: usize = 1 << 16;
 
 /// What an inference BatchNorm and (leaky) ReLU do to each value of channel `c` of a
@@ -127,9 +128,9 @@ pub fn conv3x3(x: &T4, u: &[f32], bias: Option<&[f32]>, cout: usize, post: Optio
                 mm(m, t, cin, prod.as_mut_ptr().add(xi * m * t), t, false, a, cin, 1, b, t, 1);
             }
         }
-        // SAFETY: this unit writes rows 2 b0 .. 2 b1 (within h) of channels c0..c1 of sample s
-        // only; no other unit writes or reads them.
-        let out = unsafe { std::slice::from_raw_parts_mut(yp.0.add((s * cout + c0) * hw), m * hw) };
+        // SAFETY (of `transform_outputs`' contract): this unit writes rows 2 b0 .. 2 b1 (within h)
+        // of channels c0..c1 of sample s, inside `d`'s capacity; no other unit writes or reads them.
+        let out = Ptr(unsafe { yp.0.add((s * cout + c0) * hw) });
         transform_outputs(prod, (m, t), (h, w), (b0, b1), bias.map(|b| &b[c0..c1]), post.map(|p| (p, c0)), out);
         BUFS.with(|c| c.set(bufs));
     });
@@ -155,8 +156,9 @@ fn units(n: usize, cin: usize, cout: usize, th: usize, tw: usize) -> (usize, usi
 }
 
 /// Runs `$body` (an `#[inline(always)]` function) compiled for AVX-512 or AVX2 where the CPU
-/// has them, else as it is: the transforms only add and subtract, so every build gives the
-/// same bits, and the wider builds vectorise the whole-row loops 16 or 8 lanes at a time.
+/// has them, else as it is: the transforms add and subtract, and the BatchNorm multiplies and
+/// adds without fusing, so every build gives the same bits (test below), and the wider builds
+/// vectorise the whole-row loops 16 or 8 lanes at a time.
 macro_rules! multiversion {
     ($name:ident, $body:ident, ($($arg:ident: $ty:ty),*)) => {
         #[allow(clippy::too_many_arguments)]
@@ -198,7 +200,7 @@ multiversion!(
         bands: (usize, usize),
         bias: Option<&[f32]>,
         post: Option<(&Post, usize)>,
-        out: &mut [f32]
+        out: Ptr
     )
 );
 
@@ -274,6 +276,10 @@ fn inputs_body(x: &[f32], cin: usize, h: usize, w: usize, b0: usize, b1: usize, 
 /// `Y = A^T M A` of every block from the products `prod` (16 matrices `[m, t]`), plus the bias,
 /// then `post` (with the unit's first output channel) if any, into rows `2 b0 .. 2 b1` (within
 /// `h`) of the `m` output planes at `out` (each `h x w`). `A^T = [[1, 1, 1, 0], [0, 1, -1, -1]]`.
+///
+/// Contract (the reason `out` is a [`Ptr`]: units of other bands write the other rows of the
+/// same planes at the same time): `out` points to `m` planes of `h x w`, and the caller lets
+/// this call alone write and read those rows; each row is made a slice of its own.
 #[inline(always)]
 fn outputs_body(
     prod: &[f32],
@@ -282,7 +288,7 @@ fn outputs_body(
     (b0, b1): (usize, usize),
     bias: Option<&[f32]>,
     post: Option<(&Post, usize)>,
-    out: &mut [f32],
+    out: Ptr,
 ) {
     let tw = w.div_ceil(2);
     let row = || [vec![0.0f32; tw], vec![0.0f32; tw], vec![0.0f32; tw], vec![0.0f32; tw]];
@@ -315,7 +321,9 @@ fn outputs_body(
                     p.apply(c0 + co, &mut even);
                     p.apply(c0 + co, &mut odd);
                 }
-                let line = &mut out[co * h * w + y * w..][..w];
+                // SAFETY: row y of output channel co is inside the planes at `out` and no one
+                // else writes or reads it while this runs (the caller's contract).
+                let line = unsafe { std::slice::from_raw_parts_mut(out.0.add(co * h * w + y * w), w) };
                 line.chunks_exact_mut(2).zip(even.iter().zip(&odd)).for_each(|(o, (&e, &q))| {
                     o[0] = e;
                     o[1] = q;
@@ -395,8 +403,8 @@ mod tests {
         let bias = values(m, 14);
         let post = Post { scale: values(4, 15), shift: values(4, 16), slope: 0.2 };
         let (mut fast, mut plain) = (vec![0.0f32; m * h * w], vec![0.0f32; m * h * w]);
-        transform_outputs(&prod, (m, t), (h, w), (b0, b1), Some(&bias), Some((&post, 1)), &mut fast);
-        outputs_body(&prod, (m, t), (h, w), (b0, b1), Some(&bias), Some((&post, 1)), &mut plain);
+        transform_outputs(&prod, (m, t), (h, w), (b0, b1), Some(&bias), Some((&post, 1)), Ptr(fast.as_mut_ptr()));
+        outputs_body(&prod, (m, t), (h, w), (b0, b1), Some(&bias), Some((&post, 1)), Ptr(plain.as_mut_ptr()));
         assert_eq!(fast, plain);
         assert!(fast[2 * w..].iter().any(|&v| v != 0.0), "rows of the bands were written");
     }
@@ -479,7 +487,7 @@ mod timing {
             let ti = med(&|| transform_inputs(&x.d, c, s, s, 0, th, &mut v.borrow_mut()));
             let prod = vec![0.0f32; 16 * c * th * tw];
             let out = std::cell::RefCell::new(vec![0.0f32; c * s * s]);
-            let to = med(&|| transform_outputs(&prod, (c, th * tw), (s, s), (0, th), None, None, &mut out.borrow_mut()));
+            let to = med(&|| transform_outputs(&prod, (c, th * tw), (s, s), (0, th), None, None, Ptr(out.borrow_mut().as_mut_ptr())));
             eprintln!(
                 "{c} ch {s}x{s}: direct {d:.3} ms, winograd {w:.3} ms ({:.2}x); one thread: inputs {ti:.3} ms, outputs {to:.3} ms",
                 w / d
