@@ -272,6 +272,27 @@ fn forward_units(n: usize, kin: usize, cout: usize, h: usize, w: usize) -> (usiz
 /// forward pass 10% slower); at 128 channels and below the shifted band is 3 to 8% faster.
 const IM2COL_FROM: usize = 768;
 
+/// A layer's output of `len` values, filled by units `(sample, band, block)` of `[n, nb, nc]`
+/// on all cores: `f(sample, band, block, out)` gets a pointer to the whole buffer and writes its
+/// own part. Not zeroed first (memset was 8% of a training step's profile).
+///
+/// # Safety
+/// The units together must write every one of the `len` values, and no two units may write
+/// the same value: nothing reads the buffer before it is handed back.
+pub(super) unsafe fn by_units(len: usize, [n, nb, nc]: [usize; 3], f: impl Fn(usize, usize, usize, Ptr) + Sync) -> Vec<f32> {
+    let mut d: Vec<f32> = Vec::with_capacity(len);
+    let yp = Ptr(d.as_mut_ptr());
+    (0..n * nb * nc).into_par_iter().for_each(|u| {
+        // The whole Ptr (Send), not its raw field: closures capture fields separately.
+        #[allow(clippy::redundant_locals)]
+        let yp = yp;
+        f(u / (nb * nc), u / nc % nb, u % nc, yp);
+    });
+    // SAFETY: every value was written (the caller's contract).
+    unsafe { d.set_len(len) };
+    d
+}
+
 /// `y = conv(x, weight) + bias`: stride 1, zero padding `k / 2`, `weight` as
 /// `[cout, cin, k, k]`. Units are (sample, band of rows, block of output channels), all cores.
 pub fn conv_forward(x: &T4, weight: &[f32], bias: Option<&[f32]>, cout: usize, k: usize) -> T4 {
@@ -284,16 +305,8 @@ pub fn conv_forward(x: &T4, weight: &[f32], bias: Option<&[f32]>, cout: usize, k
     let nb = h.div_ceil(rows);
     let nc = cout.div_ceil(cb);
     let wp = if k == 1 || by_col { Vec::new() } else { swap_middle(weight, cout, cin, k, k) };
-    // Not zeroed: the units below write every value (memset was 8% of a training step's profile).
-    // Nothing reads it before `set_len`, and by then every value has been written.
-    let len = n * cout * hw;
-    let mut d: Vec<f32> = Vec::with_capacity(len);
-    let yp = Ptr(d.as_mut_ptr());
-    (0..n * nb * nc).into_par_iter().for_each(|u| {
-        // The whole Ptr (Send), not its raw field: closures capture fields separately.
-        #[allow(clippy::redundant_locals)]
-        let yp = yp;
-        let (s, r0, c0) = (u / (nb * nc), (u / nc % nb) * rows, (u % nc) * cb);
+    let unit = |s: usize, band: usize, block: usize, yp: Ptr| {
+        let (r0, c0) = (band * rows, block * cb);
         let (r1, c1) = ((r0 + rows).min(h), (c0 + cb).min(cout));
         let (npx, m) = ((r1 - r0) * w, c1 - c0);
         let xs = x.sample(s);
@@ -310,8 +323,8 @@ pub fn conv_forward(x: &T4, weight: &[f32], bias: Option<&[f32]>, cout: usize, k
             } else {
                 with_col(|buf| {
                     let stride = shifted_band(xs, cin, h, w, k, r0, r1, buf);
-                    // Per kernel row: rows (ci, kx) of the band, a uniform `stride` apart, from
-                    // `ky` rows down; the weights' (ci, kx) block of that row.
+                    // Per kernel row: rows (ci, kx) of the band, a uniform `stride` apart,
+                    // from `ky` rows down; the weights' (ci, kx) block of that row.
                     for ky in 0..k {
                         let (a, b) = (wp.as_ptr().add(c0 * kk + ky * cin * k), buf.as_ptr().add(ky * w));
                         mm(m, npx, cin * k, dst, hw, ky > 0, a, kk, 1, b, stride, 1);
@@ -325,10 +338,11 @@ pub fn conv_forward(x: &T4, weight: &[f32], bias: Option<&[f32]>, cout: usize, k
                 }
             }
         }
-    });
-    // SAFETY: the units cover every sample, every row 0..h and every channel 0..cout, and `mm`
-    // without `acc` writes all of a unit's values (gemm does not read dst then).
-    unsafe { d.set_len(len) };
+    };
+    // SAFETY (`by_units`' contract): the units cover every sample, every row 0..h and every
+    // channel 0..cout, and `mm` without `acc` writes all of a unit's values (gemm does not read
+    // dst then).
+    let d = unsafe { by_units(n * cout * hw, [n, nb, nc], unit) };
     T4 { n, c: cout, h, w, d }
 }
 

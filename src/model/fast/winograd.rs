@@ -11,9 +11,8 @@
 //! in `G`): tested against it here, and whole networks' gradients against burn's
 //! (`tests.rs`). Deterministic: units depend on the sizes alone.
 
-use super::kernels::{mm, Ptr};
+use super::kernels::{by_units, mm, Ptr};
 use super::T4;
-use rayon::prelude::*;
 
 /// The transformed weights `U = G g G^T` of `[cout, cin, 3, 3]` weights, as 16 matrices of
 /// `[cout, cin]` (position `xi = 4 i + j` of the 4 x 4 transform), computed in f64.
@@ -104,14 +103,8 @@ pub fn conv3x3(x: &T4, u: &[f32], bias: Option<&[f32]>, cout: usize, post: Optio
     let nb = th.div_ceil(rows);
     let nc = cout.div_ceil(cb);
     let hw = h * w;
-    let len = n * cout * hw;
-    // Not zeroed: the units write every value before `set_len`.
-    let mut d: Vec<f32> = Vec::with_capacity(len);
-    let yp = Ptr(d.as_mut_ptr());
-    (0..n * nb * nc).into_par_iter().for_each(|unit| {
-        #[allow(clippy::redundant_locals)]
-        let yp = yp;
-        let (s, b0, c0) = (unit / (nb * nc), (unit / nc % nb) * rows, (unit % nc) * cb);
+    let unit = |s: usize, band: usize, block: usize, yp: Ptr| {
+        let (b0, c0) = (band * rows, block * cb);
         let (b1, c1) = ((b0 + rows).min(th), (c0 + cb).min(cout));
         let (t, m) = ((b1 - b0) * tw, c1 - c0);
         let mut bufs = BUFS.with(|c| c.take());
@@ -120,23 +113,24 @@ pub fn conv3x3(x: &T4, u: &[f32], bias: Option<&[f32]>, cout: usize, post: Optio
         prod.resize(prod.len().max(16 * m * t), 0.0);
         transform_inputs(x.sample(s), cin, h, w, b0, b1, v);
         for xi in 0..16 {
-            // SAFETY: U[xi] rows c0..c1 (cin each), V[xi] (cin x t) and M[xi] (m x t) are inside
-            // `u`, `v` and `prod` (sized above).
+            // SAFETY: U[xi] rows c0..c1 (cin each), V[xi] (cin x t) and M[xi] (m x t) are
+            // inside `u`, `v` and `prod` (sized above).
             unsafe {
                 let a = u.as_ptr().add((xi * cout + c0) * cin);
                 let b = v.as_ptr().add(xi * cin * t);
                 mm(m, t, cin, prod.as_mut_ptr().add(xi * m * t), t, false, a, cin, 1, b, t, 1);
             }
         }
-        // SAFETY (of `transform_outputs`' contract): this unit writes rows 2 b0 .. 2 b1 (within h)
-        // of channels c0..c1 of sample s, inside `d`'s capacity; no other unit writes or reads them.
+        // SAFETY (of `transform_outputs`' contract): this unit writes rows 2 b0 .. 2 b1
+        // (within h) of channels c0..c1 of sample s, inside the buffer; no other unit
+        // writes or reads them.
         let out = Ptr(unsafe { yp.0.add((s * cout + c0) * hw) });
         transform_outputs(prod, (m, t), (h, w), (b0, b1), bias.map(|b| &b[c0..c1]), post.map(|p| (p, c0)), out);
         BUFS.with(|c| c.set(bufs));
-    });
-    // SAFETY: the units cover every sample, block row and output channel, and
-    // `transform_outputs` writes every value of its rows.
-    unsafe { d.set_len(len) };
+    };
+    // SAFETY (`by_units`' contract): the units cover every sample, block row and output
+    // channel, and `transform_outputs` writes every value of its rows.
+    let d = unsafe { by_units(n * cout * hw, [n, nb, nc], unit) };
     T4 { n, c: cout, h, w, d }
 }
 
