@@ -163,7 +163,9 @@ fn gradients_match_burn_where_winograd_takes_the_forward_and_input_gradient() {
     // 16 channels on at least 8 x 8 blocks: the layers take `winograd::conv3x3` (odd sides too).
     assert!(winograd::worth_it(16, 16, 17, 18) && winograd::worth_it(16, 16, 32, 32));
     network_gradients_match(crate::model::Arch::Shallow { width: 16 }, 1, 17, 18);
-    network_gradients_match(crate::model::Arch::Unet { base: 16 }, 1, 32, 32);
+    // Two samples: with one, the 2 x 2 level's BatchNorm sees 4 values per channel, and the
+    // comparison failed once (6.6e-3) among the other tests while it passed alone.
+    network_gradients_match(crate::model::Arch::Unet { base: 16 }, 2, 32, 32);
 }
 
 #[test]
@@ -266,19 +268,21 @@ fn twenty_steps_give_burns_loss_curve() {
 
 #[test]
 fn the_same_seed_gives_the_same_weights_with_any_thread_count() {
-    let arch = crate::model::Arch::Unet { base: 4 };
-    let init = FastNet::from_net(&initial(arch, &Device::flex()));
-    let run = |threads: usize| {
-        rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| {
-            let (_, mut f) = train_steps(init.clone(), 4);
-            let mut w = Vec::new();
-            f.params(&mut |p, _| w.extend_from_slice(p));
-            w
-        })
-    };
-    let (a, b, c) = (run(1), run(2), run(2));
-    assert_eq!(b, c, "two runs, one seed");
-    assert_eq!(a, b, "1 and 2 threads");
+    // Base 16: its 16 x 16 level takes Winograd (forward and input gradient).
+    for arch in [crate::model::Arch::Unet { base: 4 }, crate::model::Arch::Unet { base: 16 }] {
+        let init = FastNet::from_net(&initial(arch, &Device::flex()));
+        let run = |threads: usize| {
+            rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap().install(|| {
+                let (_, mut f) = train_steps(init.clone(), 4);
+                let mut w = Vec::new();
+                f.params(&mut |p, _| w.extend_from_slice(p));
+                w
+            })
+        };
+        let (a, b, c) = (run(1), run(2), run(2));
+        assert_eq!(b, c, "{arch:?}: two runs, one seed");
+        assert_eq!(a, b, "{arch:?}: 1 and 2 threads");
+    }
 }
 
 #[test]
