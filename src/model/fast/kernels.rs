@@ -254,10 +254,11 @@ const MIN_BLOCK: usize = 64;
 /// [`band_rows`] for products of inner size `kin`; where (sample, band) units are fewer than
 /// [`MIN_UNITS`], bands halved while they keep [`MIN_BAND_PX`] pixels, then blocks of output
 /// channels of at least [`MIN_BLOCK`], as many as that takes. A function of the sizes alone, so
-/// the same for any thread count.
-fn forward_units(n: usize, kin: usize, cout: usize, h: usize, w: usize) -> (usize, usize) {
+/// the same for any thread count. `min_band`: what a halved band keeps at least, in `w`'s units
+/// ([`MIN_BAND_PX`] for pixels; Winograd's bands count 2 x 2 blocks).
+pub(super) fn forward_units(n: usize, kin: usize, cout: usize, h: usize, w: usize, min_band: usize) -> (usize, usize) {
     let mut rows = band_rows(kin, h, w);
-    while n * h.div_ceil(rows) < MIN_UNITS && rows > 1 && (rows / 2) * w >= MIN_BAND_PX {
+    while n * h.div_ceil(rows) < MIN_UNITS && rows > 1 && (rows / 2) * w >= min_band {
         rows /= 2;
     }
     let units = n * h.div_ceil(rows);
@@ -301,7 +302,7 @@ pub fn conv_forward(x: &T4, weight: &[f32], bias: Option<&[f32]>, cout: usize, k
     assert_eq!(weight.len(), cout * kk, "conv weight size");
     let hw = h * w;
     let by_col = k > 1 && cin * k >= IM2COL_FROM;
-    let (rows, cb) = forward_units(n, if by_col { kk } else { cin * k }, cout, h, w);
+    let (rows, cb) = forward_units(n, if by_col { kk } else { cin * k }, cout, h, w, MIN_BAND_PX);
     let nb = h.div_ceil(rows);
     let nc = cout.div_ceil(cb);
     let wp = if k == 1 || by_col { Vec::new() } else { swap_middle(weight, cout, cin, k, k) };

@@ -11,7 +11,7 @@
 //! in `G`): tested against it here, and whole networks' gradients against burn's
 //! (`tests.rs`). Deterministic: units depend on the sizes alone.
 
-use super::kernels::{by_units, mm, Ptr};
+use super::kernels::{by_units, forward_units, mm, Ptr};
 use super::T4;
 
 /// The transformed weights `U = G g G^T` of `[cout, cin, 3, 3]` weights, as 16 matrices of
@@ -62,10 +62,6 @@ pub static OFF: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::n
 /// Input and output channels a layer needs at least for [`worth_it`].
 const MIN_CHANNELS: usize = 16;
 
-/// Floats a unit's transformed inputs (`16 x cin x blocks`) may take: 256 KiB, within the
-/// second-level cache (1 MiB units were no faster, and slower at 256 channels on 16 x 16).
-const UNIT_FLOATS: usize = 1 << 16;
-
 /// What an inference BatchNorm and (leaky) ReLU do to each value of channel `c` of a
 /// convolution's output: `act(v * scale[c] + shift[c])`, `act(v) = v > 0 ? v : slope * v`.
 pub struct Post {
@@ -99,7 +95,11 @@ pub fn conv3x3(x: &T4, u: &[f32], bias: Option<&[f32]>, cout: usize, post: Optio
     let (n, cin, h, w) = (x.n, x.c, x.h, x.w);
     assert_eq!(u.len(), 16 * cout * cin, "transformed weight size");
     let (th, tw) = (h.div_ceil(2), w.div_ceil(2));
-    let (rows, cb) = units(n, cin, cout, th, tw);
+    // The direct convolution's unit rules on the grid of blocks: a band's transformed inputs
+    // (16 cin per block) within `band_rows`' budget taken as an inner size of 64 cin, so 256 KiB
+    // (1 MiB was no faster, and slower at 256 channels on 16 x 16), and a halved band keeping
+    // 32 blocks (128 px, as the direct convolution's bands).
+    let (rows, cb) = forward_units(n, 64 * cin, cout, th, tw, 32);
     let nb = th.div_ceil(rows);
     let nc = cout.div_ceil(cb);
     let hw = h * w;
@@ -132,21 +132,6 @@ pub fn conv3x3(x: &T4, u: &[f32], bias: Option<&[f32]>, cout: usize, post: Optio
     // channel, and `transform_outputs` writes every value of its rows.
     let d = unsafe { by_units(n * cout * hw, [n, nb, nc], unit) };
     T4 { n, c: cout, h, w, d }
-}
-
-/// (block rows per band, output channels per block): bands whose transformed inputs stay
-/// within [`UNIT_FLOATS`], halved while a sample has fewer than 8 of them and a band keeps 32
-/// blocks, then blocks of at least 64 output channels for the rest (as the direct
-/// convolution's units).
-fn units(n: usize, cin: usize, cout: usize, th: usize, tw: usize) -> (usize, usize) {
-    let most = (UNIT_FLOATS / (16 * cin * tw).max(1)).max(1);
-    let mut rows = (1usize << most.ilog2()).min(th.max(1));
-    while n * th.div_ceil(rows) < 8 && rows > 1 && (rows / 2) * tw >= 32 {
-        rows /= 2;
-    }
-    let units = n * th.div_ceil(rows);
-    let blocks = 8usize.div_ceil(units).min((cout / 64).max(1));
-    (rows, cout.div_ceil(blocks))
 }
 
 /// Runs `$body` (an `#[inline(always)]` function) compiled for AVX-512 or AVX2 where the CPU
