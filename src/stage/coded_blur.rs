@@ -37,8 +37,9 @@ pub struct BlurConfig {
     /// Error budget of the low-rank blur, in 8-bit levels of linear light, RMS: the window's N
     /// kernels are factorised into the fewest directions (one FFT each per channel, instead of
     /// N) whose added error is provably at most this for any sub-frames in [0, 1] (see
-    /// `optics::lowrank`). 0: exact, every direction kept. The coded camera keeps 5 of 9 at the
-    /// default 0.25 and 4 from about 0.6. The ranks and the bound are in the run's report
+    /// `optics::lowrank`; each kernel's total is kept exactly, so flat regions carry no such
+    /// error). 0: exact, every direction kept. The coded camera keeps 4 of 9 at the default 0.25
+    /// and 3 to 4 at 0.6 to 2. The ranks and the bound are in the run's report
     /// (`stages[].details`).
     #[serde(default = "default_max_error")]
     pub max_error: f64,
