@@ -36,4 +36,4 @@ RAYON_NUM_THREADS=${THREADS:-1} exec nice -n 19 "$PIPELINE" train --config "$con
   --set "data.shards=[$shards]" --set data.val_fraction=0.1 --set data.shuffle_buffer=8192 \
   --set optim.steps="$STEPS" --set optim.lr="$LR" --set optim.lr_min_factor=0.05 --set optim.warmup_steps="$WARMUP" \
   --set validate.every=500 --set validate.max_samples=512 \
-  --set output.checkpoint_every=250 --set output.average_last=8 --set output.dir="$dir"
+  --set output.checkpoint_every=250 --set output.average_last=8 --set "output.dir=\"$dir\""

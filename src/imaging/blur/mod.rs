@@ -16,8 +16,8 @@ use std::sync::{Arc, Mutex};
 /// Per channel the N kernels are factorised as `K_k = sum_r a_kr B_r` (see
 /// [`crate::optics::lowrank`]), so a window costs R forward FFTs per channel instead of N:
 /// `sum_k K_k * S_k = sum_r B_r * (sum_k a_kr S_k)`. R is 1 for the conventional and flutter
-/// cameras (one kernel shape), 5 for parabolic with N = 9 (t^2 repeats shifts), and 5 for the
-/// coded camera at the default error budget of 0.25 of an 8-bit level (4 from about 0.6).
+/// cameras (one kernel shape), 5 for parabolic with N = 9 (t^2 repeats shifts), and 4 for the
+/// coded camera at the default error budget of 0.25 of an 8-bit level (3 to 4 at 0.6 to 2).
 pub struct Blurrer {
     pub camera: Arc<Camera>,
     pub n: usize,
