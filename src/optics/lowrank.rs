@@ -227,9 +227,9 @@ mod tests {
     #[test]
     fn a_reduced_rank_keeps_every_kernels_total() {
         // Nine smooth, overlapping blobs along a path, each summing to 1/9 as a window's kernels
-        // do: low rank but not exactly. At a rank below
-        // the full one, the eigen-directions alone drop part of each kernel's total; the kept
-        // coefficients restore it, so a flat region blurs without error.
+        // do: low rank but not exactly. At a rank below the full one, the eigen-directions alone
+        // drop part of each kernel's total; the kept coefficients restore it, so a flat region
+        // blurs without error.
         let side = 9;
         let k: Vec<Vec<f32>> = (0..9)
             .map(|i| {
