@@ -12,10 +12,12 @@
 //! by at most that much RMS for any sub-frames with values in [0, 1] (linear light, 1 level =
 //! 1/255):
 //!
-//! `RMS(sum_k E_k * S_k) <= 1/2 min( sum_k max_f |E^_k(f)|, sqrt(N max_f sum_k |E^_k(f)|^2) )`
+//! `RMS(sum_k E_k * S_k) <= 1/2 min( sum_k max_f |E^_k(f)|, sqrt(N max_f sum_k |E^_k(f)|^2) )
+//!                          + sum_k |E^_k(0)|`
 //!
-//! (Parseval with the triangle inequality over k, or with Cauchy-Schwarz over k per frequency;
-//! `E^_k(0) = 0`, so only the sub-frames' variance enters; spectra sampled on a grid twice the
+//! (maxima over f != 0: Parseval with the triangle inequality over k, or with Cauchy-Schwarz over
+//! k per frequency, applied to the sub-frames minus their means; the last term is the means'
+//! part, zero up to rounding since the totals are kept; spectra sampled on a grid twice the
 //! kernel's side). A budget of 0 keeps every direction: exact up to rounding.
 use num_complex::Complex64;
 
@@ -89,32 +91,27 @@ fn useful(vals: &[f64]) -> usize {
     vals.iter().take_while(|v| **v > floor).count().max(1)
 }
 
-/// The factorisation keeping the first `r` eigen-directions, each kernel's coefficients moved
-/// along the kept directions' sums so that its total is kept exactly (module docs; not when
-/// every useful direction is kept: nothing is dropped then).
-fn keep(kernels: &[Vec<f32>], vals: &[f64], vecs: &[Vec<f64>], r: usize, exact: bool, bound_levels: f64) -> LowRank {
+/// The eigen-directions' kernel combinations `U_q = sum_i v_iq K_i` (`= sqrt(l_q) B_q`), in f64.
+fn directions(kernels: &[Vec<f32>], vecs: &[Vec<f64>]) -> Vec<Vec<f64>> {
     let n = kernels.len();
-    let len = kernels[0].len();
-    let basis: Vec<Vec<f32>> = (0..r)
-        .map(|q| {
-            let s = vals[q].max(1e-300).sqrt();
-            (0..len).map(|p| ((0..n).map(|i| vecs[i][q] * kernels[i][p] as f64).sum::<f64>() / s) as f32).collect()
-        })
-        .collect();
-    let mut coeffs: Vec<Vec<f64>> = (0..n).map(|k| (0..r).map(|q| vecs[k][q] * vals[q].max(0.0).sqrt()).collect()).collect();
-    if !exact {
-        // In f64 from the kernels, not from the f32 basis: sum(B_q) = sum_i v_iq sum(K_i) / sqrt(l_q).
-        let totals: Vec<f64> = kernels.iter().map(|k| k.iter().map(|v| *v as f64).sum()).collect();
-        let sums: Vec<f64> = (0..r).map(|q| (0..n).map(|i| vecs[i][q] * totals[i]).sum::<f64>() / vals[q].max(1e-300).sqrt()).collect();
-        let norm: f64 = sums.iter().map(|c| c * c).sum();
-        if norm > 1e-300 {
-            for (ck, total) in coeffs.iter_mut().zip(&totals) {
-                let delta = (total - ck.iter().zip(&sums).map(|(a, c)| a * c).sum::<f64>()) / norm;
-                ck.iter_mut().zip(&sums).for_each(|(a, c)| *a += delta * c);
-            }
+    (0..n).map(|q| (0..kernels[0].len()).map(|p| (0..n).map(|i| vecs[i][q] * kernels[i][p] as f64).sum()).collect()).collect()
+}
+
+/// Each kernel's coefficients on the first `r` eigen-directions, `a_kq = v_kq sqrt(l_q)`; with
+/// `keep_totals`, moved along the kept directions' sums `c_q = sum(B_q)` so that each kernel's
+/// total is kept exactly (module docs). `totals`: the kernels' sums.
+fn coefficients(vals: &[f64], vecs: &[Vec<f64>], totals: &[f64], r: usize, keep_totals: bool) -> Vec<Vec<f64>> {
+    let mut coeffs: Vec<Vec<f64>> = vecs.iter().map(|v| (0..r).map(|q| v[q] * vals[q].max(0.0).sqrt()).collect()).collect();
+    // sum(B_q) = sum_i v_iq sum(K_i) / sqrt(l_q), in f64 from the kernels (not the f32 basis).
+    let sums: Vec<f64> = (0..r).map(|q| vecs.iter().zip(totals).map(|(v, t)| v[q] * t).sum::<f64>() / vals[q].max(1e-300).sqrt()).collect();
+    let norm: f64 = sums.iter().map(|c| c * c).sum();
+    if keep_totals && norm > 1e-300 {
+        for (ck, total) in coeffs.iter_mut().zip(totals) {
+            let delta = (total - ck.iter().zip(&sums).map(|(a, c)| a * c).sum::<f64>()) / norm;
+            ck.iter_mut().zip(&sums).for_each(|(a, c)| *a += delta * c);
         }
     }
-    LowRank { basis, coeffs, bound_levels }
+    coeffs
 }
 
 /// Factorises square kernels (`side x side`, row-major) keeping the smallest rank whose error
@@ -123,87 +120,71 @@ fn keep(kernels: &[Vec<f32>], vals: &[f64], vecs: &[Vec<f64>], r: usize, exact: 
 pub fn factorise_within(kernels: &[Vec<f32>], max_error: f64) -> LowRank {
     let (vals, vecs) = gram_eigen(kernels);
     let most = useful(&vals);
-    if max_error <= 0.0 {
-        return keep(kernels, &vals, &vecs, most, true, 0.0);
+    let u = directions(kernels, &vecs);
+    let totals: Vec<f64> = kernels.iter().map(|k| k.iter().map(|v| *v as f64).sum()).collect();
+    let basis =
+        |r: usize| -> Vec<Vec<f32>> { (0..r).map(|q| u[q].iter().map(|v| (v / vals[q].max(1e-300).sqrt()) as f32).collect()).collect() };
+    if max_error > 0.0 {
+        let spectra = direction_spectra(&u);
+        for r in 1..most {
+            let coeffs = coefficients(&vals, &vecs, &totals, r, true);
+            let bound_levels = error_bound(&spectra, &vals, &vecs, &coeffs);
+            if bound_levels <= max_error {
+                return LowRank { basis: basis(r), coeffs, bound_levels };
+            }
+        }
     }
-    let bounds = error_bounds(kernels, &vals, &vecs);
-    let r = (1..=most).find(|&r| bounds[r] <= max_error).unwrap_or(most);
-    keep(kernels, &vals, &vecs, r, r == most, if r == most { 0.0 } else { bounds[r] })
+    LowRank { basis: basis(most), coeffs: coefficients(&vals, &vecs, &totals, most, false), bound_levels: 0.0 }
 }
 
-/// `bounds[r]` for r = 0..=N: the RMS error bound in 8-bit levels of keeping r directions with
-/// the kernels' totals kept exactly (module docs; r = 0 keeps nothing, so no total either).
-fn error_bounds(kernels: &[Vec<f32>], vals: &[f64], vecs: &[Vec<f64>]) -> Vec<f64> {
-    let n = kernels.len();
-    let side = (kernels[0].len() as f64).sqrt().round() as usize;
-    assert_eq!(side * side, kernels[0].len(), "square kernels");
-    // Spectra of the eigen-directions' kernel combinations U_q = sum_i v_iq K_i (= sqrt(l_q) B_q).
-    // The dropped part of K_k past rank r is sum_{q >= r} v_kq U_q, before the totals are kept.
+/// Spectra of the directions `U_q` (square, `side x side`) on a grid twice the kernel's side.
+fn direction_spectra(u: &[Vec<f64>]) -> Vec<Vec<Complex64>> {
+    let side = (u[0].len() as f64).sqrt().round() as usize;
+    assert_eq!(side * side, u[0].len(), "square kernels");
     let m = 2 * side;
-    let spectrum = |img: &[f64]| -> Vec<Complex64> {
-        let mut a = vec![Complex64::new(0.0, 0.0); m * m];
-        for y in 0..side {
-            for x in 0..side {
-                a[y * m + x].re = img[y * side + x];
+    u.iter()
+        .map(|img| {
+            let mut a = vec![Complex64::new(0.0, 0.0); m * m];
+            for y in 0..side {
+                a[y * m..y * m + side].iter_mut().zip(&img[y * side..(y + 1) * side]).for_each(|(z, v)| z.re = *v);
             }
-        }
-        crate::optics::fft::fft2_f64(&mut a, m, m);
-        a
-    };
-    let u: Vec<Vec<Complex64>> = (0..n)
-        .map(|q| {
-            let img: Vec<f64> = (0..side * side).map(|p| (0..n).map(|i| vecs[i][q] * kernels[i][p] as f64).sum()).collect();
-            spectrum(&img)
+            crate::optics::fft::fft2_f64(&mut a, m, m);
+            a
         })
-        .collect();
-    // Keeping the totals adds delta_k sum_{q < r} c_q B_q to kernel k's approximation, where
-    // c_q = sum(B_q) and delta_k = (dropped total) / sum_{q < r} c_q^2 (`keep`). In spectra:
-    // g[r](f) = sum_{q < r} c_q B^_q(f) = sum_{q < r} U^_q(0) U^_q(f) / l_q, norms[r] its c^2 sum.
-    let most = useful(vals);
-    let mut g = vec![vec![Complex64::new(0.0, 0.0); m * m]; n + 1];
-    let mut norms = vec![0.0f64; n + 1];
-    for q in 0..n {
-        let (head, tail) = g.split_at_mut(q + 1);
-        tail[0].copy_from_slice(&head[q]);
-        norms[q + 1] = norms[q];
-        if q < most {
-            let w = u[q][0].re / vals[q];
-            tail[0].iter_mut().zip(&u[q]).for_each(|(a, b)| *a += w * b);
-            norms[q + 1] += u[q][0].re * w;
+        .collect()
+}
+
+/// The RMS error bound in 8-bit levels of the factorisation with coefficients `coeffs` (`[k][q]`
+/// for the first `r` directions): `E_k = K_k - sum_{q < r} a_kq B_q = sum_q w_kq U_q` with
+/// `w_kq = v_kq - a_kq / sqrt(l_q)` for q < r and `v_kq` past it. Over the non-zero frequencies
+/// the module docs' bound with half (the sub-frames' variance is at most 1/4), plus the mean's
+/// part `sum_k |E^_k(0)|` (a sub-frame's mean is in [0, 1]), which is rounding where the totals
+/// are kept.
+fn error_bound(spectra: &[Vec<Complex64>], vals: &[f64], vecs: &[Vec<f64>], coeffs: &[Vec<f64>]) -> f64 {
+    let n = vecs.len();
+    let mut per_f_sum = vec![0.0f64; spectra[0].len()];
+    let mut e = vec![Complex64::new(0.0, 0.0); spectra[0].len()];
+    let (mut triangle, mut mean_part) = (0.0, 0.0);
+    for (v, a) in vecs.iter().zip(coeffs) {
+        e.fill(Complex64::new(0.0, 0.0));
+        for (q, uq) in spectra.iter().enumerate() {
+            let w = v[q] - a.get(q).map_or(0.0, |a| a / vals[q].max(1e-300).sqrt());
+            e.iter_mut().zip(uq).for_each(|(z, u)| *z += w * u);
         }
+        mean_part += e[0].norm();
+        // One pass over the values: the kernel's largest |E|^2 (one square root, not one `hypot`
+        // per value: those were 2 million calls per channel, a tenth of a second of a run's
+        // start) and, per frequency, the sum over the kernels in kernel order.
+        let mut most = 0.0f64;
+        for (s, z) in per_f_sum.iter_mut().zip(&e).skip(1) {
+            let q = z.norm_sqr();
+            *s += q;
+            most = most.max(q);
+        }
+        triangle += most.sqrt();
     }
-    let mut bounds = vec![0.0; n + 1];
-    // e[k][f] = sum_{q >= r} v_kq U_q(f), built from r = N down to 0.
-    let mut e = vec![vec![Complex64::new(0.0, 0.0); m * m]; n];
-    for r in (0..n).rev() {
-        for (k, ek) in e.iter_mut().enumerate() {
-            let v = vecs[k][r];
-            for (a, b) in ek.iter_mut().zip(&u[r]) {
-                *a += v * b;
-            }
-        }
-        let kept_totals = norms[r] > 1e-300;
-        // One pass over the values: each kernel's largest |E|^2 (one square root each, not one
-        // `hypot` per value: those were 2 million calls per channel, a tenth of a second of a
-        // run's start) and, per frequency, the sum over the kernels in kernel order.
-        let mut per_f_sum = vec![0.0f64; m * m];
-        let mut triangle = 0.0;
-        for ek in &e {
-            let delta = if kept_totals { ek[0].re / norms[r] } else { 0.0 };
-            let mut most = 0.0f64;
-            for ((s, z), gf) in per_f_sum.iter_mut().zip(ek).zip(&g[r]) {
-                let q = (z - delta * gf).norm_sqr();
-                *s += q;
-                most = most.max(q);
-            }
-            triangle += most.sqrt();
-        }
-        let per_f = per_f_sum.into_iter().fold(0.0, f64::max);
-        // With the totals kept only the sub-frames' variance (at most 1/4) meets the error.
-        let std_bound = if kept_totals { 0.5 } else { 1.0 };
-        bounds[r] = 255.0 * std_bound * triangle.min((n as f64 * per_f).sqrt());
-    }
-    bounds
+    let per_f = per_f_sum.into_iter().fold(0.0, f64::max);
+    255.0 * (0.5 * f64::min(triangle, (n as f64 * per_f).sqrt()) + mean_part)
 }
 
 #[cfg(test)]
@@ -247,7 +228,8 @@ mod tests {
         let f = factorise_within(&k, 1.0);
         assert!(f.basis.len() < 9 && f.bound_levels > 0.0, "rank {} bound {}", f.basis.len(), f.bound_levels);
         let (vals, vecs) = gram_eigen(&k);
-        let plain = keep(&k, &vals, &vecs, f.basis.len(), true, 0.0);
+        let totals: Vec<f64> = k.iter().map(|ki| ki.iter().map(|v| *v as f64).sum()).collect();
+        let plain = LowRank { coeffs: coefficients(&vals, &vecs, &totals, f.basis.len(), false), ..f.clone() };
         let total = |lr: &LowRank, i: usize| -> f64 {
             (0..lr.basis.len()).map(|r| lr.coeffs[i][r] * lr.basis[r].iter().map(|v| *v as f64).sum::<f64>()).sum()
         };
