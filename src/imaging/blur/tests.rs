@@ -8,12 +8,20 @@ use crate::optics::{CameraConfig, CameraKind, OpticsConfig};
 fn frames(n: usize, w: usize, h: usize, seed: u64) -> Vec<Arc<Frame>> {
     (0..n)
         .map(|k| {
-            let p = std::array::from_fn(|c| {
-                (0..w * h).map(|i| crate::rng::unit(crate::rng::hash(&[seed, k as u64, c as u64, i as u64])) as f32).collect()
-            });
-            Arc::new(Frame { curve: Some(crate::optics::transfer::Curve::Identity), ..Frame::new(w, h, FrameData::Planar(p)) })
+            linear(
+                w,
+                h,
+                std::array::from_fn(|c| {
+                    (0..w * h).map(|i| crate::rng::unit(crate::rng::hash(&[seed, k as u64, c as u64, i as u64])) as f32).collect()
+                }),
+            )
         })
         .collect()
+}
+
+/// A frame of linear planes.
+fn linear(w: usize, h: usize, p: [Vec<f32>; 3]) -> Arc<Frame> {
+    Arc::new(Frame { curve: Some(crate::optics::transfer::Curve::Identity), ..Frame::new(w, h, FrameData::Planar(p)) })
 }
 
 /// Per channel, the sum of direct convolutions of the whole frames with the window's
@@ -94,13 +102,8 @@ fn the_low_rank_error_stays_within_its_reported_bound() {
     }
     // Each kernel's total is kept, so sub-frames that are flat (a different level each) blur
     // without the low-rank error at any budget: only rounding is left.
-    let flat: Vec<Arc<Frame>> = (0..9)
-        .map(|k| {
-            let v = 0.1 + 0.1 * k as f32;
-            let p = std::array::from_fn(|c| vec![v * (1.0 - 0.2 * c as f32); w * h]);
-            Arc::new(Frame { curve: Some(crate::optics::transfer::Curve::Identity), ..Frame::new(w, h, FrameData::Planar(p)) })
-        })
-        .collect();
+    let flat: Vec<Arc<Frame>> =
+        (0..9).map(|k| linear(w, h, std::array::from_fn(|c| vec![(0.1 + 0.1 * k as f32) * (1.0 - 0.2 * c as f32); w * h]))).collect();
     let mut coarse = Blurrer::new(cam.clone(), 9, 2, 2.0).unwrap();
     let got = coarse.blur_region(&flat, 0, 0, w, h);
     for (c, worst) in worst_vs_direct(&coarse, &flat, &got).into_iter().enumerate() {
