@@ -162,11 +162,7 @@ fn tiled_blur_equals_direct_convolution_across_the_seams() {
             }
         }
     }
-    let imp = Arc::new(Frame {
-        curve: Some(crate::optics::transfer::Curve::Identity),
-        ..Frame::new(w, h, FrameData::Planar([impulses[0].clone(), impulses[1].clone(), impulses[2].clone()]))
-    });
-    fr[1] = imp;
+    fr[1] = linear(w, h, [impulses[0].clone(), impulses[1].clone(), impulses[2].clone()]);
     let mut outs = Vec::new();
     for threads in [1, 2] {
         let mut b = Blurrer::new(cam.clone(), n, threads, 0.0).unwrap();
