@@ -321,6 +321,9 @@ pub struct Pair {
     pub h: usize,
     pub lq: Img,
     pub gt: Img,
+    /// The sharp images at each of the sample's [`Sample::times`] (burst targets), in time
+    /// order; empty when the window has one target, `gt`, the middle sub-frame.
+    pub burst: Vec<Img>,
 }
 
 /// The coded-blur result of one window, with everything needed to reproduce it.
@@ -344,6 +347,9 @@ pub struct Sample {
     pub cropped: bool,
     /// The middle frame's motion label ([`Frame::motion`]).
     pub motion: Option<Arc<str>>,
+    /// The times of the burst targets ([`Pair::burst`]) as fractions of the exposure, in (0, 1):
+    /// `(k + 0.5) / K`; empty without a burst.
+    pub times: Vec<f64>,
     pub pairs: Vec<Pair>,
 }
 

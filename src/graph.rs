@@ -272,9 +272,10 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
     }
     let settings = content_hash(&plan.resolved);
     let out_dir = plan.out_dir();
+    plan.sink().admits(&out_dir, (opts.task_index, opts.task_count))?;
     std::fs::create_dir_all(&out_dir).map_err(|e| Error::Io { path: out_dir.clone(), cause: e })?;
     let probe = out_dir.join(format!(".write-test.{}", std::process::id()));
-    std::fs::write(&probe, b"").map_err(|e| Error::Io { path: out_dir.clone(), cause: e })?;
+    crate::io::create_new(&probe).map_err(|e| Error::Io { path: out_dir.clone(), cause: e })?;
     let _ = std::fs::remove_file(&probe);
 
     // Temporary files of killed runs on this machine (their process is gone) go first.
@@ -624,8 +625,7 @@ fn write_report(dir: &Path, opts: &RunOptions, stem: &str, r: &Report) -> Result
     let mut r = r.clone();
     r.peak_rss_mb = crate::provenance::peak_rss_kb().map(|k| k as f64 / 1024.0);
     let bytes = serde_json::to_vec_pretty(&r).expect("json");
-    let runs = dir.join("reports");
-    std::fs::create_dir_all(&runs).map_err(|e| Error::Io { path: runs.clone(), cause: e })?;
+    let runs = crate::io::make_dir_in(dir, Path::new("reports"))?;
     crate::io::write_atomic(&runs.join(r.provenance.file_name(&stem)), |w| w.write_all(&bytes))?;
     crate::io::write_atomic(&dir.join(format!("{stem}.json")), |w| w.write_all(&bytes))
 }

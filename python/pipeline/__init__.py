@@ -73,6 +73,11 @@ class CodedBlurDataset(_Base):
     curve, sRGB by default) or 0 to 255 (``dtype="uint8"``, exactly the PNG pixels ``pipeline
     generate`` writes); ``meta`` is the dict the shards carry as ``key.json`` plus ``key``.
 
+    Bursts (``overrides={"transforms.blur.burst": True}``): ``gt`` is the whole burst, a
+    (K, 3, H, W) array of the sharp images at the times ``meta["times"]`` lists (the shards'
+    ``key.gt.00.png`` ...); with ``burst="each"`` the dataset yields ``(lq, t, gt_at_t, meta)``
+    once per time instead.
+
     paths:      videos, folders of videos or globs (None: the pipeline file's own paths).
     config:     a pipeline file (None: the pipelines/generate.toml built into the package).
     overrides:  ``{"transforms.blur.window": 11, "transforms.noise.sigma": [0, 9]}``, as
@@ -96,7 +101,7 @@ class CodedBlurDataset(_Base):
     """
 
     def __init__(self, paths=None, config=None, overrides=None, seed=None, dtype="float32", on_failure="raise",
-                 rank=None, world_size=None):
+                 rank=None, world_size=None, burst="all"):
         if isinstance(paths, (str, os.PathLike)):
             paths = [paths]
         self.paths = [os.fspath(p) for p in (paths or [])]
@@ -115,6 +120,9 @@ class CodedBlurDataset(_Base):
             raise ValueError(f"on_failure={on_failure!r}: expected 'raise' or 'warn'")
         self.on_failure = on_failure
         self.rank, self.world_size = rank, world_size
+        if burst not in ("all", "each"):
+            raise ValueError(f"burst={burst!r}: expected 'all' (the whole burst as gt) or 'each' ((lq, t, gt_at_t, meta) per time)")
+        self.burst = burst
         # (path, reason) of inputs that failed in the last iteration in this process (a
         # DataLoader worker's list stays in the worker; its warning reaches the log).
         self.failed = []
@@ -151,7 +159,11 @@ class CodedBlurDataset(_Base):
             for lq, gt, key, meta in stream:
                 m = json.loads(meta)
                 m["key"] = key
-                yield lq, gt, m
+                if self.burst == "each" and "times" in m:
+                    for t, g in zip(m["times"], gt):
+                        yield lq, t, g, m
+                else:
+                    yield lq, gt, m
         finally:
             self.failed = stream.failed
             stream.close()

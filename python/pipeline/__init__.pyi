@@ -24,6 +24,7 @@ class CodedBlurDataset(_Base):  # type: ignore[misc, valid-type]
     on_failure: str
     rank: int | None
     world_size: int | None
+    burst: str
     failed: list[tuple[str, str]]
     def __init__(
         self,
@@ -35,6 +36,7 @@ class CodedBlurDataset(_Base):  # type: ignore[misc, valid-type]
         on_failure: str = ...,
         rank: int | None = ...,
         world_size: int | None = ...,
+        burst: str = ...,
     ) -> None: ...
     def task(self) -> tuple[int, int]: ...
     def inputs(self) -> list[str]: ...

@@ -69,7 +69,10 @@ struct Ready {
     w: usize,
     h: usize,
     lq: Vec<u8>,
+    /// The target, or a burst's K targets one after another (K x CHW).
     gt: Vec<u8>,
+    /// How many targets `gt` holds: 0 for one image (3, H, W), K for a burst (K, 3, H, W).
+    burst: usize,
     /// The sample's key and its `key.json` text.
     key: String,
     meta: String,
@@ -94,7 +97,12 @@ fn ready(s: &Sample, p: &Pair) -> Ready {
         w: p.w,
         h: p.h,
         lq: planar(&rgb(&p.lq), p.w, p.h),
-        gt: planar(&rgb(&p.gt), p.w, p.h),
+        gt: if p.burst.is_empty() {
+            planar(&rgb(&p.gt), p.w, p.h)
+        } else {
+            p.burst.iter().flat_map(|b| planar(&rgb(b), p.w, p.h)).collect()
+        },
+        burst: p.burst.len(),
         key,
         meta: String::from_utf8(meta).expect("JSON is UTF-8"),
     }
@@ -148,7 +156,7 @@ impl Stream {
     fn __next__<'py>(&mut self, py: Python<'py>) -> PyResult<Option<PyPair<'py>>> {
         loop {
             if let Some(r) = self.pending.pop_front() {
-                let (lq, gt) = (self.array(py, r.lq, r.h, r.w)?, self.array(py, r.gt, r.h, r.w)?);
+                let (lq, gt) = (self.array(py, r.lq, 0, r.h, r.w)?, self.array(py, r.gt, r.burst, r.h, r.w)?);
                 return Ok(Some((lq, gt, r.key, r.meta)));
             }
             let Some(inner) = self.inner.as_mut() else { return Ok(None) };
@@ -192,14 +200,20 @@ impl Stream {
 }
 
 impl Stream {
-    /// A (3, H, W) array that owns the buffer it was made from (no copy for uint8).
-    fn array<'py>(&self, py: Python<'py>, chw: Vec<u8>, h: usize, w: usize) -> PyResult<Bound<'py, PyAny>> {
+    /// A (3, H, W) array, or (K, 3, H, W) for `k` > 0 images, that owns the buffer it was made
+    /// from (no copy for uint8).
+    fn array<'py>(&self, py: Python<'py>, chw: Vec<u8>, k: usize, h: usize, w: usize) -> PyResult<Bound<'py, PyAny>> {
         if self.float {
             let f: Vec<f32> = chw.iter().map(|&v| f32::from(v) / 255.0).collect();
-            Ok(f.into_pyarray(py).reshape([3, h, w])?.into_any())
-        } else {
-            let a: Bound<'py, PyArray3<u8>> = chw.into_pyarray(py).reshape([3, h, w])?;
+            let a = f.into_pyarray(py);
+            return Ok(if k == 0 { a.reshape([3, h, w])?.into_any() } else { a.reshape([k, 3, h, w])?.into_any() });
+        }
+        let a = chw.into_pyarray(py);
+        if k == 0 {
+            let a: Bound<'py, PyArray3<u8>> = a.reshape([3, h, w])?;
             Ok(a.into_any())
+        } else {
+            Ok(a.reshape([k, 3, h, w])?.into_any())
         }
     }
 }

@@ -7,7 +7,7 @@
 use super::ConfigArgs;
 use crate::io::{png as png_io, write_atomic};
 use crate::model::fast::FastNet;
-use crate::model::infer::{run_rows, Tiling};
+use crate::model::infer::{run_rows_at, Tiling};
 use crate::progress::{Bar, ProgressMode};
 use crate::{Error, Result};
 use clap::Args;
@@ -88,6 +88,10 @@ pub struct DeblurReport {
     pub changed: Vec<Changed>,
     /// Stopped by SIGINT or SIGTERM after `frames` images, each written whole.
     pub interrupted: bool,
+    /// `--burst K`: the times (fractions of each capture's exposure) of the K outputs per
+    /// capture, in order; absent for one output per capture.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub burst_times: Option<Vec<f32>>,
 }
 
 #[derive(Debug, serde::Serialize)]
@@ -133,6 +137,7 @@ impl DeblurReport {
             failed: Vec::new(),
             changed: Vec::new(),
             interrupted: false,
+            burst_times: None,
         }
     }
 }
@@ -146,9 +151,10 @@ fn temp_for(path: &Path) -> PathBuf {
     path.with_file_name(crate::io::temp_name(&name, ext.as_deref()))
 }
 
-/// Removes temporaries of killed deblur runs in `dir` (this machine, process gone).
-fn remove_stale(dir: &Path) {
-    for p in crate::io::remove_stale(if dir.as_os_str().is_empty() { Path::new(".") } else { dir }, 0) {
+/// Removes the temporaries killed deblur runs left for the files `targets` (this machine,
+/// process gone), and nothing else in their folders.
+fn remove_stale(targets: &[PathBuf]) {
+    for p in crate::io::remove_stale_for(targets) {
         eprintln!("removed {} (left by a run that was killed)", p.display());
     }
 }
@@ -168,17 +174,40 @@ pub fn video(
     lossless: bool,
     progress: ProgressMode,
 ) -> Result<DeblurReport> {
+    video_at(net, model_name, input, output, tiling, lossless, progress, None)
+}
+
+/// [`video`], or with `times` a burst per frame: the output at each time, in order, so the video
+/// comes back at `times.len()` times the frame rate (a coded 26.7 fps clip of 240 fps footage
+/// deblurred into 9 frames each comes back at 240 fps).
+///
+/// # Errors
+/// As [`video`].
+#[cfg(feature = "ffmpeg")]
+#[allow(clippy::too_many_arguments)]
+pub fn video_at(
+    net: &FastNet,
+    model_name: &str,
+    input: &Path,
+    output: &Path,
+    tiling: Tiling,
+    lossless: bool,
+    progress: ProgressMode,
+    times: Option<&[f32]>,
+) -> Result<DeblurReport> {
     use crate::io::video::{VideoReader, VideoWriter};
     crate::signal::install();
     let t0 = Instant::now();
-    remove_stale(output.parent().unwrap_or(Path::new(".")));
+    remove_stale(&[output.to_path_buf()]);
     let mut reader = VideoReader::open(input).map_err(Error::video(input))?;
     let (w, h) = (reader.info.width, reader.info.height);
     if lossless && output.extension().and_then(|e| e.to_str()) != Some("mkv") {
         return Err(Error::Usage(format!("{}: --lossless writes FFV1, which needs a .mkv output", output.display())));
     }
     let tmp = temp_for(output);
-    let mut writer = VideoWriter::create(&tmp, w, h, reader.rate, lossless).map_err(Error::video(output))?;
+    let k = times.map_or(1, <[f32]>::len);
+    let rate = (reader.rate.0.saturating_mul(k as i32), reader.rate.1);
+    let mut writer = VideoWriter::create(&tmp, w, h, rate, lossless).map_err(Error::video(output))?;
     let bar = Bar::new(progress, "deblur", "frames", reader.info.frames_announced);
     let result = (|| -> Result<u64> {
         while let Some(f) = reader.next_frame().map_err(Error::video(input))? {
@@ -189,8 +218,13 @@ pub fn video(
                 )));
             }
             let rgb = to_rgb8(&f, reader.float);
-            let out = crate::model::infer::run_frame(net, &rgb, w, h, tiling);
-            writer.write_rgb8(&out).map_err(Error::video(output))?;
+            let outs = match times {
+                Some(ts) => crate::model::infer::run_frame_burst(net, &rgb, w, h, tiling, ts),
+                None => vec![crate::model::infer::run_frame(net, &rgb, w, h, tiling)],
+            };
+            for out in outs {
+                writer.write_rgb8(&out).map_err(Error::video(output))?;
+            }
             bar.inc(1);
         }
         bar.finish();
@@ -211,7 +245,7 @@ pub fn video(
         model_name,
         frames,
         (w, h),
-        Some(reader.info.fps),
+        Some(reader.info.fps * k as f64),
         tiling,
         t0,
         "not copied: deblur writes the video stream only",
@@ -330,30 +364,45 @@ fn deblur_image(
     dst_ext: &str,
     tiling: Tiling,
 ) -> Result<((usize, usize), Vec<String>)> {
+    deblur_image_at(net, src, src_ext, &[dst.to_path_buf()], dst_ext, tiling, None)
+}
+
+/// [`deblur_image`] into `dsts`: one file, or with `times` a burst, the output at `times[k]`
+/// into `dsts[k]`.
+fn deblur_image_at(
+    net: &FastNet,
+    src: &Path,
+    src_ext: &str,
+    dsts: &[PathBuf],
+    dst_ext: &str,
+    tiling: Tiling,
+    times: Option<&[f32]>,
+) -> Result<((usize, usize), Vec<String>)> {
     let pic = read_picture(src, src_ext)?;
     let (w, h) = pic.size();
     let (sixteen, float, alpha, grey) = pic.traits();
-    let mut canvas = match (&pic, dst_ext) {
+    let blank = || match (&pic, dst_ext) {
         (Picture::Png(s), "png") => Canvas::Png(s.clone()),
         (_, "exr") => Canvas::Linear(std::array::from_fn(|_| vec![0.0; w * h])),
         _ => Canvas::Rgb8(vec![0; w * h * 3]),
     };
+    let mut canvases: Vec<Canvas> = dsts.iter().map(|_| blank()).collect();
     let mut lost = Vec::new();
-    let kept_by = |c: &Canvas| matches!(c, Canvas::Png(_));
-    if alpha && !kept_by(&canvas) {
+    let kept = matches!(canvases[0], Canvas::Png(_));
+    if alpha && !kept {
         lost.push("alpha dropped".to_string());
     }
-    if grey && !kept_by(&canvas) {
+    if grey && !kept {
         lost.push("grey written as RGB".to_string());
     }
-    if (sixteen || float) && matches!(canvas, Canvas::Rgb8(_)) {
+    if (sixteen || float) && matches!(canvases[0], Canvas::Rgb8(_)) {
         lost.push(format!("{} samples written as 8 bits", if float { "float" } else { "16-bit" }));
     }
     let curve = crate::optics::transfer::Curve::Srgb;
-    run_rows(net, w, h, tiling, &|i, c| pic.encoded(i, c), &mut |y, row| {
+    run_rows_at(net, w, h, tiling, times, &|i, c| pic.encoded(i, c), &mut |k, y, row| {
         for x in 0..w {
             let (i, rgb) = (y * w + x, &row[x * 3..x * 3 + 3]);
-            match &mut canvas {
+            match &mut canvases[k] {
                 Canvas::Png(s) if s.channels <= 2 => s.set(i, 0, (rgb[0] + rgb[1] + rgb[2]) / 3.0),
                 Canvas::Png(s) => (0..3).for_each(|c| s.set(i, c, rgb[c])),
                 Canvas::Linear(p) => (0..3).for_each(|c| p[c][i] = curve.to_linear(rgb[c] as f64) as f32),
@@ -362,7 +411,9 @@ fn deblur_image(
         }
     });
     drop(pic);
-    write_canvas(dst, dst_ext, w, h, &canvas)?;
+    for (dst, canvas) in dsts.iter().zip(&canvases) {
+        write_canvas(dst, dst_ext, w, h, canvas)?;
+    }
     Ok(((w, h), lost))
 }
 
@@ -406,6 +457,31 @@ pub fn images(
     tiling: Tiling,
     progress: ProgressMode,
 ) -> Result<DeblurReport> {
+    images_at(net, model_name, input, output, tiling, progress, None)
+}
+
+/// The files a burst of `k` from image `f` is written to in the folder `output`:
+/// `output/{stem}/00.{ext}` ... (two digits), in the image's own format.
+pub fn burst_files(output: &Path, f: &Path, k: usize) -> Vec<PathBuf> {
+    let stem = f.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let ext = f.extension().map(|e| e.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
+    (0..k).map(|i| output.join(&stem).join(format!("{i:02}.{ext}"))).collect()
+}
+
+/// [`images`], or with `times` a burst per image into a folder of its own
+/// ([`burst_files`]).
+///
+/// # Errors
+/// As [`images`].
+pub fn images_at(
+    net: &FastNet,
+    model_name: &str,
+    input: &Path,
+    output: &Path,
+    tiling: Tiling,
+    progress: ProgressMode,
+    times: Option<&[f32]>,
+) -> Result<DeblurReport> {
     crate::signal::install();
     let t0 = Instant::now();
     let files = crate::io::paths::expand_paths(&[input.display().to_string()], &IMAGE_EXTENSIONS)?;
@@ -414,10 +490,15 @@ pub fn images(
     }
     // One image to a file named like an image (`deblur a.png -o b.png`): written there, in the
     // format of its own extension. Otherwise the output is a folder of the same names.
-    let single = (input.is_file() && image_ext(output).is_some()).then(|| image_ext(output).expect("checked"));
+    let single = (input.is_file() && image_ext(output).is_some() && times.is_none()).then(|| image_ext(output).expect("checked"));
     let folder = if single.is_some() { output.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new(".")) } else { output };
     std::fs::create_dir_all(folder).map_err(|e| Error::Io { path: folder.to_path_buf(), cause: e })?;
-    remove_stale(folder);
+    let targets: Vec<PathBuf> = match (&single, times) {
+        (Some(_), _) => vec![output.to_path_buf()],
+        (None, Some(ts)) => files.iter().flat_map(|f| burst_files(output, f, ts.len())).collect(),
+        (None, None) => files.iter().filter_map(|f| f.file_name()).map(|n| output.join(n)).collect(),
+    };
+    remove_stale(&targets);
     let bar = Bar::new(progress, "deblur", "images", Some(files.len() as u64));
     let (mut w, mut h, mut done) = (0, 0, 0);
     let mut failed = Vec::new();
@@ -429,9 +510,14 @@ pub fn images(
             break;
         }
         let ext = f.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase();
-        let res = match &single {
-            Some(out_ext) => deblur_image(net, f, &ext, output, out_ext, tiling),
-            None => deblur_image(net, f, &ext, &output.join(f.file_name().expect("a file")), &ext, tiling),
+        let res = match (&single, times) {
+            (Some(out_ext), _) => deblur_image(net, f, &ext, output, out_ext, tiling),
+            (None, Some(ts)) => {
+                let dsts = burst_files(output, f, ts.len());
+                let sub = dsts[0].parent().expect("a folder per image").strip_prefix(output).expect("inside").to_path_buf();
+                crate::io::make_dir_in(output, &sub).and_then(|_| deblur_image_at(net, f, &ext, &dsts, &ext, tiling, Some(ts)))
+            }
+            (None, None) => deblur_image(net, f, &ext, &output.join(f.file_name().expect("a file")), &ext, tiling),
         };
         match res {
             Ok((size, lost)) => {
@@ -519,19 +605,40 @@ pub fn image_ext(p: &Path) -> Option<String> {
     IMAGE_EXTENSIONS.contains(&e.as_str()).then_some(e)
 }
 
-/// The files a run from `input` would write at `out` (the report aside): the video or image, or
-/// the folder's images of the input's names. None for a folder whose report says its run was
-/// interrupted: rerunning it is how it is finished.
-fn would_replace(input: &Path, out: &Path, kind: OutKind) -> Result<Vec<PathBuf>> {
-    if kind != OutKind::Folder {
-        return Ok(vec![out.to_path_buf()]);
+/// The inputs of a run from `input`: the video or image, or the images of a folder or glob.
+fn inputs_of(input: &Path, kind: OutKind) -> Result<Vec<PathBuf>> {
+    if kind == OutKind::Video || (kind == OutKind::Image && !input.is_dir()) {
+        return Ok(vec![input.to_path_buf()]);
     }
-    let report = std::fs::read(out.join("report.json")).ok().and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok());
-    if report.is_some_and(|r| r["interrupted"] == true) {
-        return Ok(Vec::new());
+    crate::io::paths::expand_paths(&[input.display().to_string()], &IMAGE_EXTENSIONS)
+}
+
+/// The files a run writes at `out` for `inputs`, its report included: the video or image, or the
+/// folder's images of the inputs' names.
+fn outputs_of(inputs: &[PathBuf], out: &Path, kind: OutKind, burst: Option<usize>) -> Vec<PathBuf> {
+    match kind {
+        OutKind::Folder => {
+            let mut v: Vec<PathBuf> = match burst {
+                Some(k) => inputs.iter().flat_map(|f| burst_files(out, f, k)).collect(),
+                None => inputs.iter().filter_map(|f| f.file_name()).map(|n| out.join(n)).collect(),
+            };
+            v.push(out.join("report.json"));
+            v
+        }
+        _ => vec![out.to_path_buf(), PathBuf::from(format!("{}.report.json", out.display()))],
     }
-    let files = crate::io::paths::expand_paths(&[input.display().to_string()], &IMAGE_EXTENSIONS)?;
-    Ok(files.iter().filter_map(|f| f.file_name()).map(|n| out.join(n)).collect())
+}
+
+/// The outputs an earlier run left that this one would replace (the report aside). None for a
+/// folder whose report says its run was interrupted: rerunning it is how it is finished.
+fn would_replace(outputs: &[PathBuf], out: &Path, kind: OutKind) -> Vec<PathBuf> {
+    if kind == OutKind::Folder {
+        let report = std::fs::read(out.join("report.json")).ok().and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok());
+        if report.is_some_and(|r| r["interrupted"] == true) {
+            return Vec::new();
+        }
+    }
+    outputs.iter().filter(|p| !p.ends_with("report.json") && !p.to_string_lossy().ends_with(".report.json")).cloned().collect()
 }
 
 /// Writes the report beside the output.
@@ -562,6 +669,11 @@ pub struct DeblurArgs {
     /// Lossless output (FFV1 RGB in .mkv) instead of H.264.
     #[arg(long)]
     pub lossless: bool,
+    /// K sharp frames per capture, in time order (2 to 64; 9 = the sub-frames of a 9-frame
+    /// window): an image `a.png` gives OUTPUT/a/00.png ... OUTPUT/a/{K-1}.png, a video comes back
+    /// at K times its frame rate. Needs a burst model (default: the shipped coded one).
+    #[arg(long, value_name = "K")]
+    pub burst: Option<usize>,
     /// Replace what an earlier run wrote at the output (refused otherwise; a folder whose report
     /// says the run was interrupted is carried on without it).
     #[arg(long)]
@@ -575,7 +687,10 @@ pub struct DeblurArgs {
 /// # Errors
 /// Whatever the command reports (exit codes in `main.rs`).
 pub fn command(a: DeblurArgs) -> anyhow::Result<()> {
-    let DeblurArgs { input, out, model, tile, overlap, lossless, overwrite, file } = a;
+    let DeblurArgs { input, out, model, tile, overlap, lossless, burst, overwrite, file } = a;
+    if let Some(k) = burst.filter(|k| !(2..=64).contains(k)) {
+        return Err(Error::Usage(format!("--burst {k}: the number of frames per capture must be 2 to 64")).into());
+    }
     let same = input.canonicalize().ok().zip(out.canonicalize().ok()).is_some_and(|(a, b)| a == b) || input == out;
     if same {
         return Err(Error::Usage(format!("{}: the output is the input; choose another output path", out.display())).into());
@@ -586,14 +701,29 @@ pub fn command(a: DeblurArgs) -> anyhow::Result<()> {
         return Err(Error::Usage(format!("{}: no such file or folder", input.display())).into());
     }
     let kind = output_kind(&input, &out)?;
-    crate::io::paths::refuse_replacing(&out, &would_replace(&input, &out, kind)?, overwrite)?;
+    if burst.is_some() && kind == OutKind::Image {
+        return Err(Error::Usage(format!(
+            "{}: --burst writes a folder per image (OUTPUT/{{name}}/00.png ...); give a folder, not an image file",
+            out.display()
+        ))
+        .into());
+    }
+    let inputs = inputs_of(&input, kind)?;
+    let outputs = outputs_of(&inputs, &out, kind, burst);
+    crate::io::paths::refuse_replacing_inputs(&outputs, &inputs)?;
+    crate::io::paths::refuse_replacing(&out, &would_replace(&outputs, &out, kind), overwrite)?;
     let (table, origin) = file.load(crate::commands::deblur::DEBLUR_TOML, "pipelines/deblur.toml")?;
     let mut d = crate::commands::deblur::DeblurFile::from_table(table, &origin)?.deblur;
     d.tile = tile.unwrap_or(d.tile);
     d.overlap = overlap.unwrap_or(d.overlap);
     let lossless = lossless || d.lossless;
     let model = model.or_else(|| (!d.model.is_empty()).then(|| PathBuf::from(&d.model)));
-    let (net, name) = crate::model::infer::load(model.as_deref())?;
+    let (net, name) = match burst {
+        Some(_) => crate::model::infer::load_burst(model.as_deref())?,
+        None => crate::model::infer::load(model.as_deref())?,
+    };
+    let times: Option<Vec<f32>> = burst.map(|k| (0..k).map(|i| (i as f32 + 0.5) / k as f32).collect());
+    let times = times.as_deref();
     let tiling = crate::model::infer::Tiling { tile: d.tile, overlap: d.overlap };
     let bar = file.progress;
     if let Some(parent) = out.parent().filter(|p| !p.as_os_str().is_empty() && kind != OutKind::Folder) {
@@ -604,14 +734,16 @@ pub fn command(a: DeblurArgs) -> anyhow::Result<()> {
     }
     let r = match kind {
         #[cfg(feature = "ffmpeg")]
-        OutKind::Video => crate::commands::deblur::video(&net, &name, &input, &out, tiling, lossless, bar)?,
+        OutKind::Video => crate::commands::deblur::video_at(&net, &name, &input, &out, tiling, lossless, bar, times)?,
         #[cfg(not(feature = "ffmpeg"))]
         OutKind::Video => {
             let _ = lossless;
             return Err(Error::Usage(format!("{}: videos need a build with the `ffmpeg` feature", input.display())).into());
         }
-        OutKind::Folder | OutKind::Image => crate::commands::deblur::images(&net, &name, &input, &out, tiling, bar)?,
+        OutKind::Folder | OutKind::Image => crate::commands::deblur::images_at(&net, &name, &input, &out, tiling, bar, times)?,
     };
+    let mut r = r;
+    r.burst_times = times.map(<[f32]>::to_vec);
     let rp = if kind == OutKind::Folder { out.join("report.json") } else { PathBuf::from(format!("{}.report.json", out.display())) };
     crate::commands::deblur::write_report(&rp, &r)?;
     if r.interrupted {

@@ -314,7 +314,7 @@ pub fn run(
     let t0 = Instant::now();
     let e = &f.eval;
     let paths = expand_paths(videos, crate::stage::input::VIDEO_EXTS)?;
-    std::fs::create_dir_all(out.join("examples")).map_err(|err| Error::Io { path: out.to_path_buf(), cause: err })?;
+    crate::io::make_dir_in(out, Path::new("examples"))?;
     let camera = Arc::new(Camera::new(&f.optics, &f.camera));
     let throughput = camera.light_throughput();
     let maxn = *e.windows.iter().max().expect("validated non-empty");

@@ -21,6 +21,9 @@ pub struct ExportArgs {
     /// Store the weights as F16 (half the bytes; `pipeline` widens them when it loads them).
     #[arg(long)]
     pub half: bool,
+    /// Replace an existing file at the output (refused otherwise; the input model is never replaced).
+    #[arg(long)]
+    pub overwrite: bool,
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -36,6 +39,8 @@ pub enum ExportFormat {
 pub fn command(a: ExportArgs) -> anyhow::Result<()> {
     let path = if a.model.is_dir() { crate::model::checkpoint::model_in(&a.model)? } else { a.model.clone() };
     let name = path.display().to_string();
+    crate::io::paths::refuse_replacing_inputs(std::slice::from_ref(&a.out), &[path.clone(), a.model.clone()])?;
+    crate::io::paths::refuse_replacing(&a.out, std::slice::from_ref(&a.out), a.overwrite)?;
     let bytes = std::fs::read(&path).map_err(|e| Error::Io { path: path.clone(), cause: e })?;
     // F32 with pipeline's names, whatever the file holds; refuse what `deblur` would refuse
     // (wrong architecture, non-finite weights).
@@ -49,6 +54,9 @@ pub fn command(a: ExportArgs) -> anyhow::Result<()> {
         ExportFormat::Burn => (read_safetensors(&native, &name)?.0.len(), native, "pipeline's names"),
     };
     let out = if a.half { narrow(&out, &name)? } else { out };
+    if let Some(parent) = a.out.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent).map_err(|e| Error::Io { path: parent.to_path_buf(), cause: e })?;
+    }
     crate::io::write_atomic(&a.out, |w| w.write_all(&out))?;
     eprintln!("{count} tensors with {what}{} -> {}", if a.half { ", F16" } else { "" }, a.out.display());
     Ok(())

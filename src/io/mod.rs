@@ -12,4 +12,6 @@ pub mod video;
 pub mod wds;
 pub mod yuv;
 
-pub use atomic::{host, remove_stale, temp_name, temp_path, write_atomic};
+pub use atomic::{
+    create_new, host, make_dir_in, open_append, open_lock, remove_stale, remove_stale_for, temp_name, temp_path, write_atomic,
+};

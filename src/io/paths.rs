@@ -91,6 +91,35 @@ pub fn refuse_replacing(out: &Path, found: &[PathBuf], overwrite: bool) -> Resul
     )))
 }
 
+/// Whether `a` and `b` name the same file (the same device and inode; or the same path when
+/// either does not exist).
+pub fn same_file(a: &Path, b: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    match (std::fs::metadata(a), std::fs::metadata(b)) {
+        (Ok(x), Ok(y)) => x.dev() == y.dev() && x.ino() == y.ino(),
+        _ => a == b,
+    }
+}
+
+/// Refuses a run that would write over one of its own inputs, `--overwrite` or not: the one rule
+/// every command follows (an input is never replaced; what an earlier run wrote is replaced only
+/// with `--overwrite`).
+///
+/// # Errors
+/// A usage error naming the output and the input it is.
+pub fn refuse_replacing_inputs(outputs: &[PathBuf], inputs: &[PathBuf]) -> Result<(), crate::Error> {
+    for o in outputs {
+        if let Some(i) = inputs.iter().find(|i| same_file(o, i)) {
+            return Err(crate::Error::Usage(format!(
+                "{}: writing there would replace the input {} (an input is never replaced, --overwrite or not); choose another output",
+                o.display(),
+                i.display()
+            )));
+        }
+    }
+    Ok(())
+}
+
 fn glob_match(pat: &str, s: &str) -> bool {
     let (p, s): (Vec<char>, Vec<char>) = (pat.chars().collect(), s.chars().collect());
     fn go(p: &[char], s: &[char]) -> bool {

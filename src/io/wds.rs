@@ -18,6 +18,24 @@ pub fn append_sample<W: Write>(w: &mut W, key: &str, lq_png: &[u8], gt_png: &[u8
     tar::append(w, &format!("{key}.json"), json)
 }
 
+/// Appends one burst sample: `key.lq.png`, `key.gt.00.png` ... `key.gt.{K-1}.png` (the sharp
+/// images at the times the JSON's `times` lists, in order), `key.json`.
+///
+/// # Errors
+/// The writer fails.
+pub fn append_burst<W: Write>(w: &mut W, key: &str, lq_png: &[u8], burst_pngs: &[Vec<u8>], json: &[u8]) -> std::io::Result<()> {
+    tar::append(w, &format!("{key}.lq.png"), lq_png)?;
+    for (k, b) in burst_pngs.iter().enumerate() {
+        tar::append(w, &format!("{key}.{}", burst_member(k)), b)?;
+    }
+    tar::append(w, &format!("{key}.json"), json)
+}
+
+/// The member name (after the key) of burst target `k`: `gt.00.png`.
+pub fn burst_member(k: usize) -> String {
+    format!("gt.{k:02}.png")
+}
+
 /// One (lq, gt) pair read from a shard: 8-bit interleaved RGB.
 #[derive(Debug, Clone)]
 pub struct Pair {
@@ -30,6 +48,19 @@ pub struct Pair {
     pub h: usize,
     pub lq: Vec<u8>,
     pub gt: Vec<u8>,
+    /// A burst sample's sharp images at [`Pair::times`], in order (`gt` is the one nearest the
+    /// middle of the exposure, so a single-frame model trains on burst shards too); empty for a
+    /// sample with one target.
+    pub burst: Vec<Vec<u8>>,
+    /// The times of `burst` as fractions of the exposure (the JSON's `times`).
+    pub times: Vec<f32>,
+}
+
+impl Pair {
+    /// The index of the burst target nearest the middle of the exposure (the later of two).
+    pub fn middle(times: &[f32]) -> usize {
+        (0..times.len()).min_by(|&a, &b| (times[a] - 0.5).abs().total_cmp(&(times[b] - 0.5).abs()).then(b.cmp(&a))).unwrap_or(0)
+    }
 }
 
 /// One sample of a shard before its images are decoded (the trainer's scan decodes only the
@@ -41,6 +72,8 @@ pub struct RawPair {
     pub source: u64,
     lq: Vec<u8>,
     gt: Vec<u8>,
+    burst: Vec<Vec<u8>>,
+    times: Vec<f32>,
 }
 
 impl RawPair {
@@ -50,12 +83,21 @@ impl RawPair {
     /// # Errors
     /// See above.
     pub fn decode(self, shard: &Path, want: Option<(usize, usize)>) -> Result<Pair> {
-        let RawPair { key, source, lq, gt } = self;
+        let RawPair { key, source, lq, gt, burst, times } = self;
         let bad = |what: String| Error::File { path: shard.to_path_buf(), why: format!("sample {key}: {what}") };
         let (w, h, lq) = png_io::read_rgb8(&lq).map_err(|e| bad(format!("lq.png is not a readable PNG ({e})")))?;
         let (gw, gh, gt) = png_io::read_rgb8(&gt).map_err(|e| bad(format!("gt.png is not a readable PNG ({e})")))?;
         let (w, h) = same_size((w, h), (gw, gh), want).map_err(bad)?;
-        Ok(Pair { key, source, w, h, lq, gt })
+        let burst = burst
+            .iter()
+            .enumerate()
+            .map(|(k, b)| {
+                let (bw, bh, v) = png_io::read_rgb8(b).map_err(|e| bad(format!("{} is not a readable PNG ({e})", burst_member(k))))?;
+                same_size((w, h), (bw, bh), None).map_err(&bad)?;
+                Ok(v)
+            })
+            .collect::<Result<Vec<_>>>()?;
+        Ok(Pair { key, source, w, h, lq, gt, burst, times })
     }
 
     /// The size both images' PNG headers declare (and `want`, if given), without decoding them.
@@ -106,37 +148,84 @@ pub fn read_shard_raw(path: &Path) -> Result<Vec<RawPair>> {
     let f = std::fs::File::open(path).map_err(|e| Error::Io { path: path.to_path_buf(), cause: e })?;
     let members = tar::read_all(std::io::BufReader::new(f)).map_err(|e| Error::File { path: path.to_path_buf(), why: e.to_string() })?;
     let mut out: Vec<RawPair> = Vec::new();
-    type Cur = (String, Option<Vec<u8>>, Option<Vec<u8>>, Option<u64>);
-    let mut cur: Option<Cur> = None;
     let bad = |key: &str, what: String| Error::File { path: path.to_path_buf(), why: format!("sample {key}: {what}") };
-    let finish = |c: Cur, out: &mut Vec<RawPair>| -> Result<()> {
-        let (key, lq, gt, idx) = c;
-        let lq = lq.ok_or_else(|| bad(&key, "has no lq.png".into()))?;
-        let gt = gt.ok_or_else(|| bad(&key, "has no gt.png".into()))?;
-        out.push(RawPair { key, source: idx.unwrap_or(0), lq, gt });
-        Ok(())
-    };
+    let mut cur: Option<Members> = None;
     for (name, bytes) in members {
         let (key, ext) = name.split_once('.').unwrap_or((name.as_str(), ""));
-        if cur.as_ref().is_none_or(|c| c.0 != key) {
+        if cur.as_ref().is_none_or(|c| c.key != key) {
             if let Some(c) = cur.take() {
-                finish(c, &mut out)?;
+                out.push(c.finish(&bad)?);
             }
-            cur = Some((key.to_string(), None, None, None));
+            cur = Some(Members { key: key.to_string(), ..Members::default() });
         }
         let c = cur.as_mut().expect("set above");
         match ext {
-            "lq.png" => c.1 = Some(bytes),
-            "gt.png" => c.2 = Some(bytes),
+            "lq.png" => c.lq = Some(bytes),
+            "gt.png" => c.gt = Some(bytes),
             "json" => {
                 let v: serde_json::Value = serde_json::from_slice(&bytes).map_err(|e| bad(key, format!("json is not valid ({e})")))?;
-                c.3 = v["input"].as_str().map(hash_str).or(v["input_index"].as_u64());
+                c.source = Some(v["input"].as_str().map(hash_str).or(v["input_index"].as_u64()).unwrap_or(0));
+                if let Some(t) = v.get("times") {
+                    let t: Vec<f32> =
+                        serde_json::from_value(t.clone()).map_err(|e| bad(key, format!("json's times is not a list of numbers ({e})")))?;
+                    c.times = Some(t);
+                }
             }
-            _ => {}
+            e => {
+                if let Some(k) = e
+                    .strip_prefix("gt.")
+                    .and_then(|r| r.strip_suffix(".png"))
+                    .filter(|k| k.len() == 2)
+                    .and_then(|k| k.parse::<usize>().ok())
+                {
+                    c.burst.push((k, bytes));
+                }
+            }
         }
     }
     if let Some(c) = cur.take() {
-        finish(c, &mut out)?;
+        out.push(c.finish(&bad)?);
     }
     Ok(out)
+}
+
+/// The members of one sample as they are read.
+#[derive(Default)]
+struct Members {
+    key: String,
+    lq: Option<Vec<u8>>,
+    gt: Option<Vec<u8>>,
+    burst: Vec<(usize, Vec<u8>)>,
+    times: Option<Vec<f32>>,
+    source: Option<u64>,
+}
+
+impl Members {
+    /// The sample, checked: an image and a JSON, and either `gt.png` or a burst of
+    /// `gt.00.png` ... whose count is the JSON's `times`.
+    fn finish(self, bad: &dyn Fn(&str, String) -> Error) -> Result<RawPair> {
+        let Members { key, lq, gt, mut burst, times, source } = self;
+        let lq = lq.ok_or_else(|| bad(&key, "has no lq.png".into()))?;
+        let source =
+            source.ok_or_else(|| bad(&key, "has no json (every sample has one: its source input decides the validation split)".into()))?;
+        burst.sort_by_key(|(k, _)| *k);
+        let times = times.unwrap_or_default();
+        if burst.is_empty() {
+            let gt = gt.ok_or_else(|| bad(&key, "has no gt.png".into()))?;
+            return Ok(RawPair { key, source, lq, gt, burst: Vec::new(), times: Vec::new() });
+        }
+        if burst.iter().enumerate().any(|(i, (k, _))| i != *k) || burst.len() != times.len() {
+            return Err(bad(
+                &key,
+                format!(
+                    "has burst targets {:?} but its json lists {} times (gt.00.png onwards, one per time)",
+                    burst.iter().map(|b| b.0).collect::<Vec<_>>(),
+                    times.len()
+                ),
+            ));
+        }
+        let burst: Vec<Vec<u8>> = burst.into_iter().map(|(_, b)| b).collect();
+        let gt = gt.unwrap_or_else(|| burst[Pair::middle(&times)].clone());
+        Ok(RawPair { key, source, lq, gt, burst, times })
+    }
 }

@@ -198,7 +198,7 @@ pub fn read_arch(bytes: &[u8]) -> std::result::Result<Arch, String> {
     let arch = header["__metadata__"]["arch"].as_str().ok_or("no `arch` in the metadata: not a pipeline model")?;
     let parsed: Arch = serde_json::from_str(arch).map_err(|e| format!("unknown arch {arch:?} ({e})"))?;
     let (b, max) = match parsed {
-        Arch::Unet { base } => (base, 256),
+        Arch::Unet { base } | Arch::BurstUnet { base } => (base, 256),
         Arch::Shallow { width } => (width, 1024),
     };
     if b == 0 || b > max {

@@ -79,13 +79,32 @@ pub fn run_rows(
     input: &(dyn Fn(usize, usize) -> f32 + Sync),
     emit: &mut dyn FnMut(usize, &[f32]),
 ) {
+    run_rows_at(net, w, h, tiling, None, input, &mut |_, y, row| emit(y, row));
+}
+
+/// [`run_rows`] for a burst: with `times`, the network's output at each of them, from one pass
+/// of the part that does not depend on the time per tile ([`FastNet::forward_burst`]);
+/// `emit(k, y, row)` receives row `y` of output `k` (rows in order, outputs in order for each
+/// row). `None`: the one output of [`FastNet::forward`], as output 0. Memory: the tile's pass
+/// plus a row of tiles per output.
+pub fn run_rows_at(
+    net: &FastNet,
+    w: usize,
+    h: usize,
+    tiling: Tiling,
+    times: Option<&[f32]>,
+    input: &(dyn Fn(usize, usize) -> f32 + Sync),
+    emit: &mut dyn FnMut(usize, usize, &[f32]),
+) {
+    let outputs = times.map_or(1, <[f32]>::len);
     let (t, o) = (tiling.tile.max(16), tiling.overlap.min(tiling.tile / 2));
     let ((tw, xs), (th, ys)) = (tiles_1d(w, t, o), tiles_1d(h, t, o));
-    // The blended rows from `base` on (RGB sums and weights); rows above `base` are emitted.
-    let (mut base, mut acc, mut wsum) = (0usize, Vec::<f32>::new(), Vec::<f32>::new());
+    // The blended rows from `base` on (RGB sums per output, and weights); rows above `base`
+    // are emitted.
+    let (mut base, mut accs, mut wsum) = (0usize, vec![Vec::<f32>::new(); outputs], Vec::<f32>::new());
     for (k, &y0) in ys.iter().enumerate() {
         let rows = y0 + th - base;
-        acc.resize(rows * w * 3, 0.0);
+        accs.iter_mut().for_each(|acc| acc.resize(rows * w * 3, 0.0));
         wsum.resize(rows * w, 0.0);
         for &x0 in &xs {
             let mut v = vec![0.0f32; 3 * tw * th];
@@ -96,7 +115,12 @@ pub fn run_rows(
                     }
                 }
             }
-            let out = net.forward(&T4::new(1, 3, th, tw, v)).d;
+            let x = T4::new(1, 3, th, tw, v);
+            let outs: Vec<T4> = match times {
+                Some(ts) => net.forward_burst(&x, ts),
+                None => vec![net.forward(&x)],
+            };
+            drop(x);
             for y in 0..th {
                 let wy = ramp(y, th, y0, h, o);
                 let r = y0 + y - base;
@@ -104,8 +128,10 @@ pub fn run_rows(
                     let wgt = wy * ramp(x, tw, x0, w, o);
                     let p = r * w + x0 + x;
                     wsum[p] += wgt;
-                    for c in 0..3 {
-                        acc[p * 3 + c] += wgt * out[c * tw * th + y * tw + x];
+                    for (acc, out) in accs.iter_mut().zip(&outs) {
+                        for c in 0..3 {
+                            acc[p * 3 + c] += wgt * out.d[c * tw * th + y * tw + x];
+                        }
                     }
                 }
             }
@@ -114,15 +140,29 @@ pub fn run_rows(
         let done = ys.get(k + 1).map_or(h, |&next| next) - base;
         let mut row = vec![0.0f32; w * 3];
         for r in 0..done {
-            for (i, v) in row.iter_mut().enumerate() {
-                *v = (acc[r * w * 3 + i] / wsum[r * w + i / 3]).clamp(0.0, 1.0);
+            for (j, acc) in accs.iter().enumerate() {
+                for (i, v) in row.iter_mut().enumerate() {
+                    *v = (acc[r * w * 3 + i] / wsum[r * w + i / 3]).clamp(0.0, 1.0);
+                }
+                emit(j, base + r, &row);
             }
-            emit(base + r, &row);
         }
-        acc.drain(..done * w * 3);
+        accs.iter_mut().for_each(|acc| drop(acc.drain(..done * w * 3)));
         wsum.drain(..done * w);
         base += done;
     }
+}
+
+/// [`run_frame`] at each of `times`: one interleaved 8-bit RGB frame per time, in order.
+pub fn run_frame_burst(net: &FastNet, rgb: &[u8], w: usize, h: usize, tiling: Tiling, times: &[f32]) -> Vec<Vec<u8>> {
+    assert_eq!(rgb.len(), w * h * 3);
+    let mut outs = vec![vec![0u8; w * h * 3]; times.len()];
+    run_rows_at(net, w, h, tiling, Some(times), &|i, c| rgb[i * 3 + c] as f32 / 255.0, &mut |k, y, row| {
+        for (o, v) in outs[k][y * w * 3..(y + 1) * w * 3].iter_mut().zip(row) {
+            *o = (v * 255.0).round() as u8;
+        }
+    });
+    outs
 }
 
 /// Loads `--model`, or the embedded default.
@@ -137,6 +177,25 @@ pub fn load(model: Option<&Path>) -> Result<(FastNet, String)> {
             .map(|(n, a)| (n, format!("models/unet32-coded ({})", a.name())))?,
     };
     Ok((FastNet::from_net(&net), name))
+}
+
+/// Loads a burst model for `deblur --burst`: `--model`, or the shipped coded burst U-Net.
+///
+/// # Errors
+/// As [`load`]; a model that was not trained for bursts is refused by name (a usage error).
+pub fn load_burst(model: Option<&Path>) -> Result<(FastNet, String)> {
+    let Some(p) = model else {
+        return Err(crate::Error::Usage(
+            "--burst without --model: no burst model is shipped in this build; pass a burst model (`model.type = \"burst_unet\"` in training)".into(),
+        ));
+    };
+    let (net, name) = load(Some(p))?;
+    if !net.is_burst() {
+        return Err(crate::Error::Usage(format!(
+            "{name}: a single-frame model; --burst needs a model trained for bursts (`model.type = \"burst_unet\"`, or models/burst-unet32-coded)"
+        )));
+    }
+    Ok((net, name))
 }
 
 #[cfg(test)]

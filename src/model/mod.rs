@@ -34,12 +34,29 @@ pub enum Arch {
     Unet { base: usize },
     /// The shallow ablation model; `width` filters per block (32 in the paper).
     Shallow { width: usize },
+    /// The U-Net told the time: the sharp image at any time t of the exposure (a fraction in
+    /// [0, 1]) from one capture ([`Film`] on its last level).
+    BurstUnet { base: usize },
 }
 
 impl Arch {
+    /// Whether the network takes the time (a burst model).
+    pub fn is_burst(&self) -> bool {
+        matches!(self, Arch::BurstUnet { .. })
+    }
+
+    /// The U-Net's or shallow model's width.
+    pub fn width(&self) -> usize {
+        match *self {
+            Arch::Unet { base } | Arch::BurstUnet { base } => base,
+            Arch::Shallow { width } => width,
+        }
+    }
+
     pub fn name(&self) -> String {
         match self {
             Arch::Unet { base } => format!("unet-{base}"),
+            Arch::BurstUnet { base } => format!("burst-unet-{base}"),
             Arch::Shallow { width } => format!("shallow-{width}"),
         }
     }
@@ -52,7 +69,7 @@ impl Arch {
         let mut convs: Vec<(usize, usize, usize, usize)> = Vec::new();
         let px = |level: usize| (h >> level) * (w >> level);
         match *self {
-            Arch::Unet { base: b } => {
+            Arch::Unet { base: b } | Arch::BurstUnet { base: b } => {
                 let double = |convs: &mut Vec<_>, cin: usize, cout: usize, level: usize| {
                     convs.push((cin, cout, 3, px(level)));
                     convs.push((cout, cout, 3, px(level)));
@@ -148,8 +165,65 @@ impl Up {
         }
     }
     fn forward(&self, x: Tensor<4>, skip: Tensor<4>) -> Tensor<4> {
-        let x = self.up.forward(x);
-        self.conv.forward(Tensor::cat(vec![skip, x], 1))
+        self.forward_film(x, skip, None)
+    }
+    /// With a time conditioning of the concatenation, as the burst U-Net's last level.
+    fn forward_film(&self, x: Tensor<4>, skip: Tensor<4>, film: Option<(&Film, &[f32])>) -> Tensor<4> {
+        let x = Tensor::cat(vec![skip, self.up.forward(x)], 1);
+        let x = match film {
+            Some((f, ts)) => f.forward(x, ts),
+            None => x,
+        };
+        self.conv.forward(x)
+    }
+}
+
+/// How many features of the time [`time_features`] gives.
+pub const TIME_FEATURES: usize = 9;
+
+/// The features of a time t in [0, 1] the burst U-Net is conditioned on: with s = 2t - 1, s itself
+/// and sin, cos of (j pi s) for j = 1 to 4.
+pub fn time_features(t: f32) -> [f32; TIME_FEATURES] {
+    let s = 2.0 * t - 1.0;
+    let mut f = [0.0; TIME_FEATURES];
+    f[0] = s;
+    for j in 1..=4 {
+        let a = std::f32::consts::PI * j as f32 * s;
+        f[2 * j - 1] = a.sin();
+        f[2 * j] = a.cos();
+    }
+    f
+}
+
+/// The time of a single-frame model's target: the middle of the exposure.
+pub const MIDDLE: f32 = 0.5;
+
+/// Time conditioning (FiLM): each channel of a feature map scaled and shifted by linear
+/// functions of the time's features, `x * (1 + f(t) G) + f(t) B`. Both start at zero, so a burst
+/// network starts as the single-frame network whose weights it was given, at every time.
+#[derive(Module, Debug)]
+pub struct Film {
+    /// `[TIME_FEATURES, channels]`.
+    pub gamma: burn::module::Param<Tensor<2>>,
+    /// `[TIME_FEATURES, channels]`.
+    pub beta: burn::module::Param<Tensor<2>>,
+}
+
+impl Film {
+    fn new(channels: usize, device: &Device) -> Film {
+        let zeros = || burn::module::Param::from_tensor(Tensor::<2>::zeros([TIME_FEATURES, channels], device));
+        Film { gamma: zeros(), beta: zeros() }
+    }
+
+    /// `x` (`[n, c, h, w]`) at the times `ts` (one per sample).
+    fn forward(&self, x: Tensor<4>, ts: &[f32]) -> Tensor<4> {
+        let [n, c, _, _] = x.dims();
+        assert_eq!(ts.len(), n, "one time per sample");
+        let f: Vec<f32> = ts.iter().flat_map(|&t| time_features(t)).collect();
+        let f = Tensor::<2>::from_data(burn::tensor::TensorData::new(f, [n, TIME_FEATURES]), &x.device());
+        let scale = f.clone().matmul(self.gamma.val()).add_scalar(1.0).reshape([n, c, 1, 1]);
+        let shift = f.matmul(self.beta.val()).reshape([n, c, 1, 1]);
+        x * scale + shift
     }
 }
 
@@ -166,6 +240,9 @@ pub struct UNet {
     up3: Up,
     up4: Up,
     outc: Conv2d,
+    /// The burst U-Net's time conditioning of the last level's input (skip and upsampled
+    /// features, `2 base` channels); `None` in a single-frame U-Net.
+    film: Option<Film>,
 }
 
 impl UNet {
@@ -182,11 +259,23 @@ impl UNet {
             up3: Up::new(2 * b, 2 * b, b, device),
             up4: Up::new(b, b, b, device),
             outc: Conv2dConfig::new([b, 3], [1, 1]).init(device),
+            film: None,
         }
     }
 
-    /// Deblurred `[n, 3, h, w]` for any h, w.
+    /// The burst U-Net: the same, with its last level told the time.
+    pub fn new_burst(base: usize, device: &Device) -> UNet {
+        UNet { film: Some(Film::new(2 * base, device)), ..UNet::new(base, device) }
+    }
+
+    /// Deblurred `[n, 3, h, w]` for any h, w (a burst U-Net: at the middle of the exposure).
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        let n = x.dims()[0];
+        self.forward_at(x, &vec![MIDDLE; n])
+    }
+
+    /// Deblurred `[n, 3, h, w]`, sample i at time `ts[i]` (ignored by a single-frame U-Net).
+    pub fn forward_at(&self, x: Tensor<4>, ts: &[f32]) -> Tensor<4> {
         let [_, _, h, w] = x.dims();
         let (ph, pw) = ((16 - h % 16) % 16, (16 - w % 16) % 16);
         let xp = if ph + pw > 0 { x.clone().pad((0, pw, 0, ph), PadMode::Edge) } else { x.clone() };
@@ -198,7 +287,7 @@ impl UNet {
         let y = self.up1.forward(x5, x4);
         let y = self.up2.forward(y, x3);
         let y = self.up3.forward(y, x2);
-        let y = self.up4.forward(y, x1);
+        let y = self.up4.forward_film(y, x1, self.film.as_ref().map(|f| (f, ts)));
         let r = self.outc.forward(y);
         let n = r.dims()[0];
         let r = if ph + pw > 0 { r.slice([0..n, 0..3, 0..h, 0..w]) } else { r };
@@ -268,6 +357,7 @@ impl Net {
     fn build(arch: Arch, device: &Device) -> Net {
         let net = match arch {
             Arch::Unet { base } => Net::Unet(UNet::new(base, device)),
+            Arch::BurstUnet { base } => Net::Unet(UNet::new_burst(base, device)),
             Arch::Shallow { width } => Net::Shallow(Shallow::new(width, device)),
         };
         net.visit(&mut Materialize);
@@ -286,6 +376,34 @@ impl Net {
         match self {
             Net::Unet(m) => m.forward(x),
             Net::Shallow(m) => m.forward(x),
+        }
+    }
+
+    /// Sample i at time `ts[i]` (a single-frame network ignores the times).
+    pub fn forward_at(&self, x: Tensor<4>, ts: &[f32]) -> Tensor<4> {
+        match self {
+            Net::Unet(m) => m.forward_at(x, ts),
+            Net::Shallow(m) => m.forward(x),
+        }
+    }
+
+    /// Whether the network takes the time.
+    pub fn is_burst(&self) -> bool {
+        matches!(self, Net::Unet(UNet { film: Some(_), .. }))
+    }
+
+    /// A burst U-Net made from a single-frame U-Net: its weights, and a time conditioning that
+    /// starts at zero (so at every time it gives what the U-Net gave).
+    ///
+    /// # Panics
+    /// If `self` is not a single-frame U-Net.
+    pub fn into_burst(self, device: &Device) -> Net {
+        match self {
+            Net::Unet(m) if m.film.is_none() => {
+                let c = m.outc.weight.val().dims()[1] * 2;
+                Net::Unet(UNet { film: Some(Film::new(c, device)), ..m })
+            }
+            _ => panic!("into_burst: not a single-frame U-Net"),
         }
     }
 
@@ -339,6 +457,7 @@ mod tests {
             let rest = match arch {
                 Arch::Unet { base } => 139 * base + 3,
                 Arch::Shallow { width } => 18 * width + 3,
+                Arch::BurstUnet { .. } => unreachable!("not in the list"),
             };
             assert_eq!(Net::new(arch, &dev()).trainable_params(), weights + rest, "{}", arch.name());
         }

@@ -52,6 +52,56 @@ pub struct BlurConfig {
     /// within float rounding. Patch mode ignores it.
     #[serde(default)]
     pub tile: usize,
+    /// Burst targets: the sharp image at each of K times of the exposure, `t_k = (k + 0.5) / K`,
+    /// instead of the middle sub-frame alone. `true`: K = the window (the sub-frames
+    /// themselves); a number K from 2 to 64: that many times, each mixed in linear light from
+    /// the two sub-frames around it; `false` (default): one target.
+    #[serde(default)]
+    pub burst: Burst,
+}
+
+/// [`BlurConfig::burst`]: `true`, `false` or a count.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum Burst {
+    On(bool),
+    Times(usize),
+}
+
+impl Default for Burst {
+    fn default() -> Self {
+        Burst::On(false)
+    }
+}
+
+impl Burst {
+    /// How many targets a window of `n` sub-frames gets (0: none, the middle frame alone).
+    pub fn count(self, n: usize) -> usize {
+        match self {
+            Burst::On(false) => 0,
+            Burst::On(true) => n,
+            Burst::Times(k) => k,
+        }
+    }
+}
+
+/// The times of `k` burst targets, `(i + 0.5) / k`.
+pub fn burst_times(k: usize) -> Vec<f64> {
+    (0..k).map(|i| (i as f64 + 0.5) / k as f64).collect()
+}
+
+/// Where time `t` (a fraction of the exposure) falls among `n` sub-frames, whose centres are at
+/// `(j + 0.5) / n`: the two sub-frames around it and the weight of the second (clamped at the
+/// ends of the exposure).
+pub fn subframe_mix(t: f64, n: usize) -> (usize, usize, f64) {
+    let p = (t * n as f64 - 0.5).clamp(0.0, (n - 1) as f64);
+    let j = (p.floor() as usize).min(n - 1);
+    let f = p - j as f64;
+    if f < 1e-9 {
+        (j, j, 0.0)
+    } else {
+        (j, (j + 1).min(n - 1), f)
+    }
 }
 
 impl BlurConfig {
@@ -97,6 +147,9 @@ impl StageConfig for BlurConfig {
         }
         c.errors.extend(self.camera.validate(&format!("{key}.camera")));
         c.errors.extend(self.optics.validate(&format!("{key}.optics")));
+        if let Burst::Times(k) = self.burst {
+            c.range_usize("burst", k, 2, 64);
+        }
         if let Some(v) = &self.camera.psi_values {
             if v.len() != self.window {
                 c.fail("camera.psi_values", format!("has {} values but window is {}", v.len(), self.window));
@@ -124,6 +177,7 @@ impl StageConfig for BlurConfig {
         let stride = self.stride.unwrap_or(self.window);
         let mut t = CodedBlur::new(blurrer, stride, ctx.seed, ctx.crop.clone(), ctx.counters.clone());
         t.tile = self.tile;
+        t.times = burst_times(self.burst.count(self.window));
         Ok(Built::Transform(Box::new(t)))
     }
 }
@@ -138,6 +192,8 @@ pub struct CodedBlur {
     pub counters: Arc<Counters>,
     /// Tile size of whole-frame blurs (0: [`crate::imaging::blur::plan_tiles`]), as [`BlurConfig::tile`].
     pub tile: usize,
+    /// Times of the burst targets ([`BlurConfig::burst`]); empty: the middle frame alone.
+    pub times: Vec<f64>,
     buf: VecDeque<(u64, Arc<Frame>)>,
     next_start: u64,
     window: u64,
@@ -146,7 +202,19 @@ pub struct CodedBlur {
 
 impl CodedBlur {
     pub fn new(blurrer: Blurrer, stride: usize, seed: u64, crop_first: Option<Selector>, counters: Arc<Counters>) -> CodedBlur {
-        CodedBlur { blurrer, stride, seed, crop_first, counters, tile: 0, buf: VecDeque::new(), next_start: 0, window: 0, input: None }
+        CodedBlur {
+            blurrer,
+            stride,
+            seed,
+            crop_first,
+            counters,
+            tile: 0,
+            times: Vec::new(),
+            buf: VecDeque::new(),
+            next_start: 0,
+            window: 0,
+            input: None,
+        }
     }
 
     fn emit_window(&mut self, input: &Arc<Input>, out: &mut Emit) -> StageResult {
@@ -166,13 +234,15 @@ impl CodedBlur {
                     .enumerate()
                     .map(|(i, ((x, y), lq))| {
                         let gt = sharp(mid, x, y, sel.size, sel.size);
-                        Pair { patch: Some(i as u32), x, y, w: sel.size, h: sel.size, lq: Img::Linear(lq), gt }
+                        let burst = burst(&frames, &self.times, x, y, sel.size, sel.size);
+                        Pair { patch: Some(i as u32), x, y, w: sel.size, h: sel.size, lq: Img::Linear(lq), gt, burst }
                     })
                     .collect()
             }
             None => {
                 let lq = self.blurrer.blur_tiled(&frames, self.tile);
-                vec![Pair { patch: None, x: 0, y: 0, w, h, lq: Img::Linear(lq), gt: sharp(mid, 0, 0, w, h) }]
+                let burst = burst(&frames, &self.times, 0, 0, w, h);
+                vec![Pair { patch: None, x: 0, y: 0, w, h, lq: Img::Linear(lq), gt: sharp(mid, 0, 0, w, h), burst }]
             }
         };
         let kernels = self.blurrer.kernels();
@@ -191,6 +261,7 @@ impl CodedBlur {
             frame_height: h,
             cropped: self.crop_first.is_some(),
             motion: mid.motion.clone(),
+            times: self.times.clone(),
             pairs,
         };
         Counters::add(&self.counters.windows, 1);
@@ -207,6 +278,22 @@ fn sharp(frame: &Frame, x: usize, y: usize, w: usize, h: usize) -> Img {
         Some(v) => Img::Encoded8(v),
         None => Img::Linear(frame.linear_crop(x, y, w, h)),
     }
+}
+
+/// The sharp images of a region at each time of `times`: a sub-frame's own pixels where a time
+/// falls on its centre, else the mix of the two around it in linear light.
+fn burst(frames: &[Arc<Frame>], times: &[f64], x: usize, y: usize, w: usize, h: usize) -> Vec<Img> {
+    times
+        .iter()
+        .map(|&t| match subframe_mix(t, frames.len()) {
+            (j, _, 0.0) => sharp(&frames[j], x, y, w, h),
+            (a, b, f) => {
+                let (pa, pb) = (frames[a].linear_crop(x, y, w, h), frames[b].linear_crop(x, y, w, h));
+                let f = f as f32;
+                Img::Linear(std::array::from_fn(|c| pa[c].iter().zip(&pb[c]).map(|(u, v)| u + f * (v - u)).collect()))
+            }
+        })
+        .collect()
 }
 
 impl Transform for CodedBlur {

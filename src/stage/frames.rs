@@ -121,6 +121,12 @@ impl Frames {
     }
 
     fn write(&mut self, s: &Sample, p: &Pair) -> crate::Result<()> {
+        if !p.burst.is_empty() {
+            return Err(crate::Error::Usage(
+                "the frames sink writes one sharp image per sample; burst targets (the blur stage's `burst`) are written by a shards sink"
+                    .into(),
+            ));
+        }
         let name = match p.patch {
             Some(i) => format!("{:06}_{:03}", s.window, i),
             None => format!("{:06}", s.window),
@@ -171,7 +177,7 @@ impl Frames {
                 }
             };
             for (d, file) in places {
-                std::fs::create_dir_all(&d).map_err(|e| crate::Error::Io { path: d.clone(), cause: e })?;
+                let d = crate::io::make_dir_in(&self.dir, d.strip_prefix(&self.dir).expect("inside the output"))?;
                 let path = d.join(file);
                 write_atomic(&path, |w| w.write_all(&bytes))?;
                 self.written.push(path);
@@ -200,7 +206,7 @@ impl Frames {
 /// Appends whole lines to a file (made if missing), in one write.
 fn append(path: &std::path::Path, lines: &str) -> crate::Result<()> {
     let io = |e| crate::Error::Io { path: path.to_path_buf(), cause: e };
-    let mut f = std::fs::OpenOptions::new().create(true).append(true).open(path).map_err(io)?;
+    let mut f = crate::io::open_append(path)?;
     std::io::Write::write_all(&mut f, lines.as_bytes()).map_err(io)
 }
 

@@ -272,6 +272,14 @@ pub trait StageConfig: std::fmt::Debug {
     fn report_stem(&self) -> &'static str {
         "report"
     }
+    /// Whether a sink may write into `dir` for this task, checked before anything is written
+    /// there (a folder holding another split of the inputs, say).
+    ///
+    /// # Errors
+    /// Why not, as a usage error.
+    fn admits(&self, _dir: &Path, _task: (usize, usize)) -> crate::Result<()> {
+        Ok(())
+    }
     /// What a sink already holds in `dir` from earlier runs.
     ///
     /// # Errors

@@ -96,6 +96,11 @@ impl Transform for Noise {
             if let Img::Linear(gt) = &p.gt {
                 p.gt = Img::Encoded8(quantise(gt, p.w, p.h, p.x, p.y, enc, 0.0, key));
             }
+            for b in &mut p.burst {
+                if let Img::Linear(v) = b {
+                    *b = Img::Encoded8(quantise(v, p.w, p.h, p.x, p.y, enc, 0.0, key));
+                }
+            }
         }
         s.sigma = Some(sigma);
         out.send(Item::Sample(s));

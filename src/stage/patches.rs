@@ -186,6 +186,7 @@ impl Transform for Patches {
                     h: sz,
                     lq: crop_img(&full.lq, full.w, x, y, sz),
                     gt: crop_img(&full.gt, full.w, x, y, sz),
+                    burst: full.burst.iter().map(|b| crop_img(b, full.w, x, y, sz)).collect(),
                 })
                 .collect();
             s.cropped = true;

@@ -1,6 +1,7 @@
 //! `shards`: WebDataset tar shards and their manifest.
 //!
-//! Shards: each sample is `key.lq.png`, `key.gt.png`, `key.json`, one after another; key
+//! Shards: each sample is `key.lq.png`, `key.gt.png`, `key.json`, one after another (a burst
+//! sample has `key.gt.00.png` ... `key.gt.{K-1}.png` in place of `key.gt.png`); key
 //! `{stem}_{id}_{window:06}[_{patch:03}]` (no dots), where `{stem}_{id}` is the input's key (its
 //! file stem and a hash of its canonical path). Shards are named `{prefix}-{stem}_{id}-{seq:04}.tar`,
 //! so runs with other inputs and tasks of an array job never collide in one folder. They are
@@ -53,6 +54,9 @@ impl StageConfig for ShardsConfig {
             c.fail("prefix", format!("{:?} must be non-empty, without '/' or '.'", self.prefix));
         }
         c.errors
+    }
+    fn admits(&self, dir: &Path, task: (usize, usize)) -> crate::Result<()> {
+        Manifest::same_split(dir, task.1)
     }
     /// What the manifest lists counts as done only when its shards are whole and were made with
     /// these settings; anything else is redone.
@@ -201,6 +205,40 @@ impl Manifest {
         }
     }
 
+    /// How many tasks the run that wrote manifest `name` was split into, if it is one.
+    fn task_count_of(name: &str) -> Option<usize> {
+        if name == "manifest.json" {
+            return Some(1);
+        }
+        let rest = name.strip_prefix("manifest-")?.strip_suffix(".json")?;
+        let (i, n) = rest.split_once("-of-")?;
+        (i.len() == 5 && i.bytes().all(|b| b.is_ascii_digit())).then_some(())?;
+        n.parse().ok()
+    }
+
+    /// One folder holds one way of splitting the inputs into tasks: every task of a split lists
+    /// its own inputs' shards, and the manifests of another split would list the same shards
+    /// again (a reader of all manifests would read their samples twice).
+    ///
+    /// # Errors
+    /// A usage error naming a manifest of another split and the ways on.
+    pub fn same_split(dir: &Path, task_count: usize) -> crate::Result<()> {
+        let want = task_count.max(1);
+        let Ok(rd) = std::fs::read_dir(dir) else { return Ok(()) };
+        let mut other: Vec<(String, usize)> =
+            rd.flatten().filter_map(|e| e.file_name().to_str().and_then(|n| Some((n.to_string(), Manifest::task_count_of(n)?)))).collect();
+        other.retain(|(_, n)| *n != want);
+        other.sort();
+        let Some((name, n)) = other.first() else { return Ok(()) };
+        let was = if *n == 1 { "one task".to_string() } else { format!("{n} tasks (--shard-count {n})") };
+        let now = if want == 1 { "one task".to_string() } else { format!("{want} tasks") };
+        Err(crate::Error::Usage(format!(
+            "{}: holds the shards of a run split into {was} ({name}); a run split into {now} would list the same inputs again. \
+             Use the folder's split, or another output folder",
+            dir.display()
+        )))
+    }
+
     /// The manifest in `dir`, if any.
     ///
     /// # Errors
@@ -236,8 +274,7 @@ impl Manifest {
     /// The lock, the manifest or the folder cannot be read or written (named).
     pub fn update(dir: &Path, name: &str, empty: Manifest, change: impl FnOnce(&mut Manifest)) -> crate::Result<Manifest> {
         let lp = dir.join(format!(".{name}.lock"));
-        let lock = std::fs::OpenOptions::new().create(true).truncate(false).write(true).open(&lp);
-        let lock = lock.map_err(|e| crate::Error::Io { path: lp.clone(), cause: e })?;
+        let lock = crate::io::open_lock(&lp)?;
         lock.lock().map_err(|e| crate::Error::Io { path: lp.clone(), cause: e })?;
         let mut m = Manifest::load(dir, name)?.unwrap_or(empty);
         change(&mut m);
@@ -260,10 +297,14 @@ struct OpenShard {
 }
 
 impl OpenShard {
-    /// Appends one sample through the checksum.
-    fn append(&mut self, key: &str, lq: &[u8], gt: &[u8], json: &[u8]) -> std::io::Result<()> {
+    /// Appends one sample through the checksum: one target, or a burst when `burst` holds any.
+    fn append(&mut self, key: &str, lq: &[u8], gt: &[u8], burst: &[Vec<u8>], json: &[u8]) -> std::io::Result<()> {
         let mut hw = HashWriter { inner: &mut self.w, crc: &mut self.crc, bytes: 0 };
-        crate::io::wds::append_sample(&mut hw, key, lq, gt, json)?;
+        if burst.is_empty() {
+            crate::io::wds::append_sample(&mut hw, key, lq, gt, json)?;
+        } else {
+            crate::io::wds::append_burst(&mut hw, key, lq, burst, json)?;
+        }
         self.bytes += hw.bytes;
         Ok(())
     }
@@ -335,12 +376,14 @@ impl Shards {
         if cur.open.is_none() {
             let name = format!("{prefix}-{}-{:04}.tar", cur.input.key, cur.closed.len());
             let tmp = dir.join(crate::io::temp_name(&name, None));
-            let f = File::create(&tmp).map_err(|e| crate::Error::Io { path: tmp.clone(), cause: e })?;
+            let f = crate::io::create_new(&tmp).map_err(|e| crate::Error::Io { path: tmp.clone(), cause: e })?;
             cur.open = Some(OpenShard { tmp, name, w: BufWriter::new(f), crc: crc32fast::Hasher::new(), bytes: 0, samples: 0 });
         }
         let o = cur.open.as_mut().expect("opened");
         let key = sample_key(s, p);
-        let res = o.append(&key, &png_bytes(&p.lq, p.w, p.h, s.curve), &png_bytes(&p.gt, p.w, p.h, s.curve), &meta_json(s, p));
+        let burst: Vec<Vec<u8>> = p.burst.iter().map(|b| png_bytes(b, p.w, p.h, s.curve)).collect();
+        let gt = if burst.is_empty() { png_bytes(&p.gt, p.w, p.h, s.curve) } else { Vec::new() };
+        let res = o.append(&key, &png_bytes(&p.lq, p.w, p.h, s.curve), &gt, &burst, &meta_json(s, p));
         res.map_err(|e| crate::Error::Io { path: o.tmp.clone(), cause: e })?;
         o.samples += 1;
         cur.samples += 1;

@@ -133,6 +133,8 @@ impl Sink for TrainerSink {
                         h: p.h,
                         lq: rgb(&p.lq),
                         gt: rgb(&p.gt),
+                        burst: p.burst.iter().map(rgb).collect(),
+                        times: if p.burst.is_empty() { Vec::new() } else { s.times.iter().map(|&t| t as f32).collect() },
                     };
                     if t.admit(&pair) {
                         self.buffer.push(pair);

@@ -198,7 +198,7 @@ impl TrainConfig {
     pub fn validate(&self) -> Vec<crate::checks::ConfigError> {
         let mut c = crate::checks::Checker::new("");
         match self.model {
-            Arch::Unet { base } => c.range_usize("model.base", base, 1, 256),
+            Arch::Unet { base } | Arch::BurstUnet { base } => c.range_usize("model.base", base, 1, 256),
             Arch::Shallow { width } => c.range_usize("model.width", width, 1, 1024),
         }
         if self.data.shards.is_empty() {
@@ -213,6 +213,9 @@ impl TrainConfig {
         c.range("optim.huber_delta", self.optim.huber_delta, 1e-6, 10.0);
         c.range("optim.adam_epsilon", self.optim.adam_epsilon, 1e-12, 1.0);
         c.range_usize("validate.every", self.validate.every, 1, 100_000_000);
+        if self.output.dir.trim().is_empty() {
+            c.fail("output.dir", "is empty; name the run's own folder (it is made if missing)");
+        }
         c.range_usize("output.checkpoint_every", self.output.checkpoint_every, 1, 100_000_000);
         c.range_usize("output.average_last", self.output.average_last, 1, 10_000);
         if self.output.average_last > 1 && self.optim.engine != EngineKind::Fast {

@@ -2,25 +2,45 @@ use super::*;
 
 /// Mean quality of a model's outputs on validation pairs, and of the inputs themselves.
 pub fn evaluate(model: &Net, val: &[Pair], device: &Device) -> (metrics::Quality, metrics::Quality) {
-    evaluate_with(val, |x, w, h| from_tensor(model.forward(to_tensor(x, w, h, device))))
+    evaluate_with(val, model.is_burst(), |x, ts, w, h| from_tensor(model.forward_at(to_tensor(x, w, h, device), ts)))
 }
 
 /// [`evaluate`] with the CPU fast path.
 pub fn evaluate_fast(model: &FastNet, val: &[Pair]) -> (metrics::Quality, metrics::Quality) {
-    evaluate_with(val, |x, w, h| from_t4(&model.forward(&to_t4(x, w, h))))
+    evaluate_with(val, model.is_burst(), |x, ts, w, h| from_t4(&model.forward_at(&to_t4(x, w, h), ts)))
+}
+
+/// The time and target a pair is trained or scored at: for a burst model and a burst sample,
+/// target `k` of its burst (`pick` gives k from the count); otherwise the middle and `gt`.
+pub fn target(p: &Pair, burst_model: bool, pick: impl FnOnce(usize) -> usize) -> (f32, &[u8]) {
+    if burst_model && !p.burst.is_empty() {
+        let k = pick(p.burst.len()) % p.burst.len();
+        (p.times[k], &p.burst[k])
+    } else {
+        (crate::model::MIDDLE, &p.gt)
+    }
+}
+
+/// The target a validation pair is scored at: a time fixed by its key, so each validation has
+/// the same times and the set covers them all.
+pub fn val_target(p: &Pair, burst_model: bool) -> (f32, &[u8]) {
+    target(p, burst_model, |k| (hash_str(&p.key) % k as u64) as usize)
 }
 
 pub(super) fn evaluate_with(
     val: &[Pair],
-    forward: impl Fn(&[&[u8]], usize, usize) -> Vec<Vec<u8>>,
+    burst: bool,
+    forward: impl Fn(&[&[u8]], &[f32], usize, usize) -> Vec<Vec<u8>>,
 ) -> (metrics::Quality, metrics::Quality) {
     let mut sums = [[0.0f64; 4]; 2];
     for chunk in val.chunks(8) {
         let (w, h) = (chunk[0].w, chunk[0].h);
-        let outs = forward(&chunk.iter().map(|p| p.lq.as_slice()).collect::<Vec<_>>(), w, h);
-        for (p, o) in chunk.iter().zip(outs) {
+        let targets: Vec<(f32, &[u8])> = chunk.iter().map(|p| val_target(p, burst)).collect();
+        let ts: Vec<f32> = targets.iter().map(|t| t.0).collect();
+        let outs = forward(&chunk.iter().map(|p| p.lq.as_slice()).collect::<Vec<_>>(), &ts, w, h);
+        for ((p, o), (_, gt)) in chunk.iter().zip(outs).zip(&targets) {
             for (k, img) in [o.as_slice(), p.lq.as_slice()].iter().enumerate() {
-                let q = metrics::quality(img, &p.gt, w, h);
+                let q = metrics::quality(img, gt, w, h);
                 let v = [q.psnr_rgb.min(99.0), q.ssim_rgb, q.psnr_y.min(99.0), q.ssim_y];
                 for i in 0..4 {
                     sums[k][i] += v[i];
@@ -43,10 +63,10 @@ pub(super) enum Engine {
 
 impl Engine {
     /// One optimisation step; returns the loss before it.
-    pub(super) fn step(&mut self, x: &T4, y: &T4, lr: f64, delta: f64, eps: f64) -> f64 {
+    pub(super) fn step(&mut self, x: &T4, ts: &[f32], y: &T4, lr: f64, delta: f64, eps: f64) -> f64 {
         match self {
             Engine::Burn { device, model, optim, huber } => {
-                let loss = huber.forward(model.forward(x.to_tensor(device)), y.to_tensor(device), Reduction::Mean);
+                let loss = huber.forward(model.forward_at(x.to_tensor(device), ts), y.to_tensor(device), Reduction::Mean);
                 let lv = loss.clone().into_scalar::<f32>() as f64;
                 if lv.is_finite() {
                     let grads = GradientsParams::from_grads(loss.backward(), model);
@@ -55,7 +75,7 @@ impl Engine {
                 }
                 lv
             }
-            Engine::Fast { net, adam, .. } => fast::train_step(net, adam, x, y, lr as f32, delta as f32, eps as f32),
+            Engine::Fast { net, adam, .. } => fast::train_step(net, adam, x, ts, y, lr as f32, delta as f32, eps as f32),
         }
     }
 

@@ -7,12 +7,7 @@ use super::*;
 /// The lock is held by another process (a usage error naming the folder), or cannot be made.
 pub(super) fn lock_run_folder(dir: &Path) -> Result<std::fs::File> {
     let lp = dir.join(".train.lock");
-    let f = std::fs::OpenOptions::new()
-        .create(true)
-        .truncate(false)
-        .write(true)
-        .open(&lp)
-        .map_err(|e| Error::Io { path: lp.clone(), cause: e })?;
+    let f = crate::io::open_lock(&lp)?;
     match f.try_lock() {
         Ok(()) => Ok(f),
         Err(std::fs::TryLockError::WouldBlock) => Err(Error::Usage(format!(
@@ -24,24 +19,66 @@ pub(super) fn lock_run_folder(dir: &Path) -> Result<std::fs::File> {
     }
 }
 
-/// The files a training run writes in its folder.
-pub(super) fn run_files(dir: &Path) -> Vec<PathBuf> {
-    let fixed = ["latest.json", "report.json", "history.csv", "curves.png", "model.safetensors"];
-    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
-        .into_iter()
-        .flatten()
-        .flatten()
-        .map(|e| e.path())
-        .filter(|p| {
-            let n = p.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-            fixed.contains(&n.as_str())
-                || (n.starts_with("model-") && n.ends_with(".safetensors"))
-                || (n.starts_with("optim-") && n.ends_with(".bin"))
-                || (n.starts_with("stream-") && n.ends_with(".json"))
-        })
-        .collect();
+/// Whether `n` (a file in a run folder) is one a training run writes. A `report.json` counts only
+/// when it is a training report: `generate` writes one too.
+fn is_run_file(dir: &Path, n: &str) -> bool {
+    let fixed = ["latest.json", "history.csv", "curves.png", "model.safetensors"];
+    fixed.contains(&n)
+        || (n == "report.json" && is_train_report(&dir.join(n)))
+        || (n.starts_with("model-") && n.ends_with(".safetensors"))
+        || (n.starts_with("optim-") && n.ends_with(".bin"))
+        || (n.starts_with("stream-") && n.ends_with(".json"))
+}
+
+/// A training run's `report.json` (it names the architecture and the metrics' convention).
+fn is_train_report(p: &Path) -> bool {
+    let small = std::fs::symlink_metadata(p).is_ok_and(|m| m.is_file() && m.len() < 256 << 20);
+    small
+        && std::fs::read(p)
+            .ok()
+            .and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok())
+            .is_some_and(|v| v.get("arch").is_some() && v.get("metrics_convention").is_some())
+}
+
+/// The names in `dir`, sorted.
+fn names(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> =
+        std::fs::read_dir(dir).into_iter().flatten().flatten().map(|e| e.file_name().to_string_lossy().into_owned()).collect();
     v.sort();
     v
+}
+
+/// The files a training run writes in its folder.
+pub(super) fn run_files(dir: &Path) -> Vec<PathBuf> {
+    names(dir).into_iter().filter(|n| is_run_file(dir, n)).map(|n| dir.join(n)).collect()
+}
+
+/// A run's folder is its own: one that holds what a training run does not write (a generate
+/// folder's shards, manifest and report; anything else but config files) is refused, with or
+/// without `--overwrite`, before anything is written in it.
+///
+/// # Errors
+/// A usage error naming the folder and up to three of the other files.
+pub(super) fn own_folder(dir: &Path) -> Result<()> {
+    if std::fs::symlink_metadata(dir).is_ok_and(|m| !m.is_dir()) {
+        return Err(Error::Usage(format!("{} (output.dir) is a file, not a folder; name a folder for the run", dir.display())));
+    }
+    let other: Vec<String> = names(dir)
+        .into_iter()
+        .filter(|n| !is_run_file(dir, n) && n != ".train.lock" && !n.ends_with(".toml") && !crate::io::atomic::is_temp_name(n))
+        .collect();
+    if other.is_empty() {
+        return Ok(());
+    }
+    let mut shown: Vec<&str> = other.iter().take(3).map(String::as_str).collect();
+    let more = (other.len() > 3).then(|| format!(" and {} more", other.len() - 3)).unwrap_or_default();
+    shown.sort();
+    Err(Error::Usage(format!(
+        "{} (output.dir) holds files a training run does not write ({}{more}): a run needs a folder of its own, which it makes if missing; \
+         choose another output.dir",
+        dir.display(),
+        shown.join(", ")
+    )))
 }
 
 /// `--resume` continues the learning-rate schedule the run started with: a changed one would

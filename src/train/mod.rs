@@ -20,7 +20,7 @@ use crate::metrics;
 pub use crate::model::checkpoint::{load_model, load_model_bytes};
 use crate::model::checkpoint::{read_meta, save_checkpoint, save_model, IdSetter, Latest};
 use crate::model::fast::{self, Adam, FastNet, T4};
-use crate::model::Net;
+use crate::model::{Arch, Net};
 use crate::rng::{hash, hash_str, unit, Rng};
 use crate::{Error, Result};
 use burn::module::Module;

@@ -71,7 +71,16 @@ fn a_model_with_non_finite_weights_is_refused_by_name() {
 
 #[test]
 fn validation_samples_spread_over_the_held_out_inputs_whatever_their_order() {
-    let pair = |src: u64, i: usize| Pair { key: format!("clip{src}_{i:06}"), source: src, w: 1, h: 1, lq: vec![0; 3], gt: vec![0; 3] };
+    let pair = |src: u64, i: usize| Pair {
+        key: format!("clip{src}_{i:06}"),
+        source: src,
+        w: 1,
+        h: 1,
+        lq: vec![0; 3],
+        gt: vec![0; 3],
+        burst: Vec::new(),
+        times: Vec::new(),
+    };
     let pick = |order: &mut dyn Iterator<Item = (u64, usize)>| {
         let mut v = ValPick::new(16, 0);
         order.for_each(|(s, i)| {

@@ -42,8 +42,22 @@ impl Trainer {
             return Err(Error::Config(errs));
         }
         let dir = PathBuf::from(&cfg.output.dir);
+        if opts.resume {
+            if !dir.join("latest.json").exists() {
+                return Err(Error::Usage(format!(
+                    "{}: nothing to resume (no latest.json: no checkpoint was written there); train without --resume to start a run",
+                    dir.display()
+                )));
+            }
+        } else {
+            own_folder(&dir)?;
+        }
         std::fs::create_dir_all(&dir).map_err(|e| Error::Io { path: dir.clone(), cause: e })?;
         let lock = lock_run_folder(&dir)?;
+        // What a killed run of this folder left half-written (this machine, process gone).
+        for p in crate::io::remove_stale(&dir, 0) {
+            eprintln!("removed {} (left by a run that was killed)", p.display());
+        }
         if !opts.resume {
             fresh_run_folder(&dir, opts.overwrite)?;
         }
@@ -71,7 +85,14 @@ impl Trainer {
         let read_history = |p: &Path| -> Option<History> { std::fs::read(p).ok().and_then(|b| serde_json::from_slice(&b).ok()) };
         if let (Some(init), false) = (&cfg.init, opts.resume) {
             let path = Path::new(init);
-            let (net, arch) = load_model(path, &device).map_err(|e| Error::Context { what: "init".into(), source: Box::new(e) })?;
+            let (mut net, mut arch) = load_model(path, &device).map_err(|e| Error::Context { what: "init".into(), source: Box::new(e) })?;
+            // A burst U-Net starts from a single-frame U-Net of its width: the same weights, and
+            // a time conditioning at zero (at every time, what the U-Net gave).
+            if let (Arch::Unet { base }, Arch::BurstUnet { base: want }) = (arch, cfg.model) {
+                if base == want {
+                    (net, arch) = (net.into_burst(&device), cfg.model);
+                }
+            }
             if arch != cfg.model {
                 return Err(Error::File {
                     path: path.to_path_buf(),
@@ -235,11 +256,19 @@ impl Trainer {
             }
         };
         let lqs: Vec<Vec<u8>> = batch.iter().enumerate().map(|(i, p)| aug(&p.lq, i)).collect();
-        let gts: Vec<Vec<u8>> = batch.iter().enumerate().map(|(i, p)| aug(&p.gt, i)).collect();
+        // A burst model learns each sample at one of its burst's times, drawn per step.
+        let burst = cfg.model.is_burst();
+        let targets: Vec<(f32, &[u8])> = batch
+            .iter()
+            .enumerate()
+            .map(|(i, p)| target(p, burst, |k| (hash(&[cfg.seed, step as u64, i as u64, hash_str("time")]) % k as u64) as usize))
+            .collect();
+        let ts: Vec<f32> = if burst { targets.iter().map(|t| t.0).collect() } else { Vec::new() };
+        let gts: Vec<Vec<u8>> = targets.iter().enumerate().map(|(i, t)| aug(t.1, i)).collect();
         let x = to_t4(&lqs.iter().map(|v| v.as_slice()).collect::<Vec<_>>(), w, h);
         let y = to_t4(&gts.iter().map(|v| v.as_slice()).collect::<Vec<_>>(), w, h);
         let lr = cfg.lr_at(step);
-        let lv = self.engine.step(&x, &y, lr, cfg.optim.huber_delta, cfg.optim.adam_epsilon);
+        let lv = self.engine.step(&x, &ts, &y, lr, cfg.optim.huber_delta, cfg.optim.adam_epsilon);
         if !lv.is_finite() {
             return Err(Error::Diverged { step: step + 1, loss: lv, latest: self.dir.join("latest.json") });
         }

@@ -17,3 +17,4 @@ mod shared_output;
 mod still;
 #[cfg(feature = "train")]
 mod train;
+mod user_files;

@@ -259,13 +259,16 @@ fn stale_temporaries_of_a_killed_run_are_removed_at_the_next_start() {
     let dead = child.id();
     child.wait().unwrap();
     let host = pipeline::io::host();
-    let stale = [format!(".train-x_0123456789ab-0000.tar~{host}~{dead}.tmp"), format!(".train-00000-0000.tar.{dead}.tmp")];
+    let stale = [format!(".train-x_0123456789ab-0000.tar~{host}~{dead}.tmp"), format!(".manifest.json~{host}~{dead}.tmp")];
     for s in &stale {
         std::fs::write(d.join(s), b"half").unwrap();
     }
+    // Names of another form are not the tool's (an older version's, or a user's): kept.
+    let foreign = d.join(format!(".train-00000-0000.tar.{dead}.tmp"));
+    std::fs::write(&foreign, b"not ours").unwrap();
     let o = generate(&d, &[FIXTURE], &[SHORT]);
     ok(&o);
-    assert!(temporaries(&d).is_empty(), "{:?}", temporaries(&d));
+    assert_eq!(temporaries(&d), vec![foreign.file_name().unwrap().to_string_lossy().into_owned()]);
     assert!(stderr(&o).contains("left by a run that was killed"), "{}", stderr(&o));
     let r: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join("report.json")).unwrap()).unwrap();
     assert_eq!(r["stale_removed"].as_array().unwrap().len(), 2);

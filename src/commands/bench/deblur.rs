@@ -58,6 +58,7 @@ pub fn deblur(width: usize, height: usize, repeats: usize) -> crate::Result<Vec<
         let torch_row: Option<serde_json::Value> = if let Some(script) = &script {
             let (kind, w) = match arch {
                 Arch::Unet { base } => ("unet", base),
+                Arch::BurstUnet { base } => ("burst_unet", base),
                 Arch::Shallow { width } => ("shallow", width),
             };
             std::process::Command::new(python())

@@ -142,7 +142,7 @@ pub(super) fn time_fast(arch: crate::model::Arch, batch: usize, repeats: usize) 
     let mut steps = Vec::new();
     for r in 0..repeats + 1 {
         let t = Instant::now();
-        train_step(&mut net, &mut adam, &x, &y, 1e-4, 0.02, 1e-8);
+        train_step(&mut net, &mut adam, &x, &[], &y, 1e-4, 0.02, 1e-8);
         if r > 0 {
             steps.push(t.elapsed().as_secs_f64());
         }
@@ -181,6 +181,7 @@ pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize, rounds:
         let torch_once = || -> Option<serde_json::Value> {
             let (kind, width) = match arch {
                 crate::model::Arch::Unet { base } => ("unet", base),
+                crate::model::Arch::BurstUnet { base } => ("burst_unet", base),
                 crate::model::Arch::Shallow { width } => ("shallow", width),
             };
             std::process::Command::new(python())

@@ -361,3 +361,95 @@ impl UpConv {
         f(&mut self.b, &mut self.gb);
     }
 }
+
+/// The burst U-Net's time conditioning ([`crate::model::Film`]): channel `c` of sample `i`
+/// becomes `x * (1 + f(t_i) G[:, c]) + f(t_i) B[:, c]`, with `f` the time's features.
+#[derive(Debug, Clone)]
+pub(super) struct Film {
+    pub(super) c: usize,
+    /// `G` and `B`, `[TIME_FEATURES, c]` row-major, and their gradients.
+    pub(super) g: Vec<f32>,
+    pub(super) b: Vec<f32>,
+    pub(super) gg: Vec<f32>,
+    pub(super) gb: Vec<f32>,
+    /// Training: the input and the times, for the backward pass.
+    pub(super) cache: Option<(T4, Vec<f32>)>,
+}
+
+use crate::model::{time_features, TIME_FEATURES};
+
+impl Film {
+    pub(super) fn from_burn(f: &crate::model::Film) -> Film {
+        let (g, b) = (values(f.gamma.val()), values(f.beta.val()));
+        let c = g.len() / TIME_FEATURES;
+        Film { c, gg: vec![0.0; g.len()], gb: vec![0.0; b.len()], g, b, cache: None }
+    }
+    pub(super) fn write(&self, f: &mut crate::model::Film) {
+        let dev = f.gamma.val().device();
+        f.gamma = Param::initialized(f.gamma.id, tensor(&self.g, [TIME_FEATURES, self.c], &dev));
+        f.beta = Param::initialized(f.beta.id, tensor(&self.b, [TIME_FEATURES, self.c], &dev));
+    }
+    /// Each channel's scale and shift at time `t`.
+    fn affine(&self, t: f32) -> (Vec<f32>, Vec<f32>) {
+        let f = time_features(t);
+        let (mut scale, mut shift) = (vec![1.0f32; self.c], vec![0.0f32; self.c]);
+        for (p, fp) in f.iter().enumerate() {
+            for c in 0..self.c {
+                scale[c] += fp * self.g[p * self.c + c];
+                shift[c] += fp * self.b[p * self.c + c];
+            }
+        }
+        (scale, shift)
+    }
+    /// `x` with sample i at time `ts[i]`.
+    pub(super) fn forward(&self, x: &T4, ts: &[f32]) -> T4 {
+        assert_eq!((ts.len(), x.c), (x.n, self.c), "one time per sample, the film's channels");
+        let mut y = x.clone();
+        let hw = x.hw();
+        for (i, &t) in ts.iter().enumerate() {
+            let (scale, shift) = self.affine(t);
+            let s = &mut y.d[i * x.c * hw..(i + 1) * x.c * hw];
+            s.par_chunks_mut(hw.max(1)).enumerate().for_each(|(c, plane)| plane.iter_mut().for_each(|v| *v = *v * scale[c] + shift[c]));
+        }
+        y
+    }
+    pub(super) fn forward_train(&mut self, x: T4, ts: &[f32]) -> T4 {
+        let y = self.forward(&x, ts);
+        self.cache = Some((x, ts.to_vec()));
+        y
+    }
+    /// Accumulates the gradients of `G` and `B`; returns the input's.
+    pub(super) fn backward(&mut self, dy: &T4) -> T4 {
+        let (x, ts) = self.cache.take().expect("forward_train before backward");
+        let hw = x.hw();
+        let mut dx = dy.clone();
+        for (i, &t) in ts.iter().enumerate() {
+            let f = time_features(t);
+            let (scale, _) = self.affine(t);
+            let at = i * x.c * hw;
+            // Per channel: the gradient of its scale (sum of dy * x) and shift (sum of dy), in f64.
+            let sums: Vec<(f64, f64)> = (0..x.c)
+                .into_par_iter()
+                .map(|c| {
+                    let (xs, ds) = (&x.d[at + c * hw..at + (c + 1) * hw], &dy.d[at + c * hw..at + (c + 1) * hw]);
+                    xs.iter().zip(ds).fold((0.0, 0.0), |(a, b), (&xv, &dv)| (a + (xv * dv) as f64, b + dv as f64))
+                })
+                .collect();
+            dx.d[at..at + x.c * hw]
+                .par_chunks_mut(hw.max(1))
+                .enumerate()
+                .for_each(|(c, plane)| plane.iter_mut().for_each(|v| *v *= scale[c]));
+            for (p, fp) in f.iter().enumerate() {
+                for (c, (ds, db)) in sums.iter().enumerate() {
+                    self.gg[p * self.c + c] += fp * *ds as f32;
+                    self.gb[p * self.c + c] += fp * *db as f32;
+                }
+            }
+        }
+        dx
+    }
+    pub(super) fn params(&mut self, f: &mut dyn FnMut(&mut [f32], &mut [f32])) {
+        f(&mut self.g, &mut self.gg);
+        f(&mut self.b, &mut self.gb);
+    }
+}

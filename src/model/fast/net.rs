@@ -20,6 +20,57 @@ pub(super) struct FUnet {
     pub(super) downs: Vec<Down>,
     pub(super) ups: Vec<Up>,
     pub(super) outc: Conv,
+    /// The burst U-Net's time conditioning of the last level's concatenation.
+    pub(super) film: Option<Film>,
+}
+
+impl FUnet {
+    /// The input padded to a multiple of 16, through every level up to the last one's
+    /// concatenation of skip and upsampled features (what does not depend on the time).
+    fn trunk(&self, x: &T4) -> T4 {
+        let (h, w) = (x.h.div_ceil(16) * 16, x.w.div_ceil(16) * 16);
+        let xp = if (h, w) != (x.h, x.w) { pad_edge(x, h, w) } else { x.clone() };
+        let mut xs = vec![self.inc.forward(&xp)];
+        drop(xp);
+        for d in &self.downs {
+            let (p, _) = maxpool(xs.last().expect("level"));
+            xs.push(d.conv.forward(&p));
+        }
+        let mut y = xs.pop().expect("bottom");
+        let (last, ups) = self.ups.split_last().expect("levels");
+        for u in ups {
+            let skip = xs.pop().expect("skip");
+            let upy = u.up.forward(&y);
+            y = u.conv.forward(&cat(&skip, &upy));
+        }
+        let skip = xs.pop().expect("skip");
+        cat(&skip, &last.up.forward(&y))
+    }
+
+    /// The rest, from the trunk's output `c`, at the times `ts` (one per sample), plus the input
+    /// `x` (cropped back to its size).
+    fn head(&self, c: T4, ts: &[f32], x: &T4) -> T4 {
+        let c = match &self.film {
+            Some(f) => f.forward(&c, ts),
+            None => c,
+        };
+        let y = self.ups.last().expect("levels").conv.forward(&c);
+        drop(c);
+        let r = self.outc.forward(&y);
+        let mut r = if (r.h, r.w) != (x.h, x.w) { crop(&r, x.h, x.w) } else { r };
+        add_into(&mut r, x);
+        r
+    }
+}
+
+/// The times of `n` samples: `ts`, or the middle of the exposure for each when it is empty.
+fn times_or_middle(ts: &[f32], n: usize) -> Vec<f32> {
+    if ts.is_empty() {
+        vec![crate::model::MIDDLE; n]
+    } else {
+        assert_eq!(ts.len(), n, "one time per sample");
+        ts.to_vec()
+    }
 }
 
 #[derive(Debug, Clone)]
@@ -64,6 +115,7 @@ impl FastNet {
                     })
                     .collect(),
                 outc: Conv::from_burn(&u.outc),
+                film: u.film.as_ref().map(Film::from_burn),
             }),
             Net::Shallow(s) => Kind::Shallow(FShallow {
                 blocks: s.blocks.iter().map(|b| ConvBnAct::from_burn(&b.conv, &b.bn, 0.0)).collect(),
@@ -86,6 +138,11 @@ impl FastNet {
                     d.conv.write(&mut b.conv);
                 }
                 f.outc.write(&mut u.outc);
+                match (&f.film, &mut u.film) {
+                    (Some(a), Some(b)) => a.write(b),
+                    (None, None) => {}
+                    _ => panic!("write_into: a burst and a single-frame U-Net"),
+                }
             }
             (Kind::Shallow(f), Net::Shallow(s)) => {
                 for (a, b) in f.blocks.iter().zip(s.blocks.iter_mut()) {
@@ -98,8 +155,20 @@ impl FastNet {
         net
     }
 
-    /// Inference (BatchNorm with running statistics): `[n, 3, h, w]` in, the same out.
+    /// Inference (BatchNorm with running statistics): `[n, 3, h, w]` in, the same out (a burst
+    /// U-Net: at the middle of the exposure).
     pub fn forward(&self, x: &T4) -> T4 {
+        self.forward_at(x, &[])
+    }
+
+    /// Whether the network takes the time (a burst U-Net).
+    pub fn is_burst(&self) -> bool {
+        matches!(&self.kind, Kind::Unet(FUnet { film: Some(_), .. }))
+    }
+
+    /// [`FastNet::forward`] with sample i at time `ts[i]` (empty: every sample at the middle;
+    /// a single-frame network ignores the times).
+    pub fn forward_at(&self, x: &T4, ts: &[f32]) -> T4 {
         match &self.kind {
             Kind::Shallow(m) => {
                 let mut y = m.blocks[0].forward(x);
@@ -111,31 +180,37 @@ impl FastNet {
                 r
             }
             Kind::Unet(m) => {
-                let (h, w) = (x.h.div_ceil(16) * 16, x.w.div_ceil(16) * 16);
-                let xp = if (h, w) != (x.h, x.w) { pad_edge(x, h, w) } else { x.clone() };
-                let mut xs = vec![m.inc.forward(&xp)];
-                drop(xp);
-                for d in &m.downs {
-                    let (p, _) = maxpool(xs.last().expect("level"));
-                    xs.push(d.conv.forward(&p));
-                }
-                let mut y = xs.pop().expect("bottom");
-                for u in &m.ups {
-                    let skip = xs.pop().expect("skip");
-                    let upy = u.up.forward(&y);
-                    y = u.conv.forward(&cat(&skip, &upy));
-                }
-                let r = m.outc.forward(&y);
-                let mut r = if (h, w) != (x.h, x.w) { crop(&r, x.h, x.w) } else { r };
-                add_into(&mut r, x);
-                r
+                let ts = times_or_middle(ts, x.n);
+                let c = m.trunk(x);
+                m.head(c, &ts, x)
+            }
+        }
+    }
+
+    /// A burst U-Net's output at each of the times `ts`, every sample at every time: the part
+    /// that does not depend on the time (all but the last level's double convolution and the
+    /// output layer) runs once. A single-frame network gives its one output for every time.
+    pub fn forward_burst(&self, x: &T4, ts: &[f32]) -> Vec<T4> {
+        match &self.kind {
+            Kind::Unet(m) if m.film.is_some() => {
+                let c = m.trunk(x);
+                ts.iter().map(|&t| m.head(c.clone(), &vec![t; x.n], x)).collect()
+            }
+            _ => {
+                let y = self.forward(x);
+                vec![y; ts.len()]
             }
         }
     }
 
     /// Training forward (batch statistics, running statistics updated), keeping what the
-    /// backward pass needs.
+    /// backward pass needs (a burst U-Net: at the middle of the exposure).
     pub fn forward_train(&mut self, x: &T4) -> T4 {
+        self.forward_train_at(x, &[])
+    }
+
+    /// [`FastNet::forward_train`] with sample i at time `ts[i]` (empty: the middle).
+    pub fn forward_train_at(&mut self, x: &T4, ts: &[f32]) -> T4 {
         match &mut self.kind {
             Kind::Shallow(m) => {
                 let mut y = Arc::new(x.clone());
@@ -159,10 +234,17 @@ impl FastNet {
                     xs.push(d.conv.forward_train(Arc::new(p)));
                 }
                 let mut y = xs.pop().expect("bottom");
-                for u in &mut m.ups {
+                let ts = times_or_middle(ts, x.n);
+                let levels = m.ups.len();
+                for (l, u) in m.ups.iter_mut().enumerate() {
                     let skip = xs.pop().expect("skip");
                     let upy = u.up.forward_train(y);
-                    y = u.conv.forward_train(Arc::new(cat(&skip, &upy)));
+                    let c = cat(&skip, &upy);
+                    let c = match (&mut m.film, l + 1 == levels) {
+                        (Some(f), true) => f.forward_train(c, &ts),
+                        _ => c,
+                    };
+                    y = u.conv.forward_train(Arc::new(c));
                 }
                 let r = m.outc.forward_train(y);
                 let mut r = if self.crop.is_some() { crop(&r, x.h, x.w) } else { r };
@@ -192,8 +274,13 @@ impl FastNet {
                 };
                 let mut d = m.outc.backward(&d, true).expect("dx");
                 let mut skips = Vec::new();
-                for u in m.ups.iter_mut().rev() {
+                let levels = m.ups.len();
+                for (l, u) in m.ups.iter_mut().enumerate().rev() {
                     let dcat = u.conv.backward(d, true).expect("dx");
+                    let dcat = match (&mut m.film, l + 1 == levels) {
+                        (Some(f), true) => f.backward(&dcat),
+                        _ => dcat,
+                    };
                     let (dskip, dup) = split(&dcat, u.skip);
                     d = u.up.backward(&dup);
                     skips.push(dskip);
@@ -225,6 +312,9 @@ impl FastNet {
                     u.conv.params(f);
                 }
                 m.outc.params(f);
+                if let Some(film) = m.film.as_mut() {
+                    film.params(f);
+                }
             }
         }
     }

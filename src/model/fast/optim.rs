@@ -1,10 +1,12 @@
 use super::*;
 
-/// One optimisation step: forward, Huber loss, backward, Adam. Returns the loss before the step;
-/// a non-finite loss leaves the network and the optimizer untouched.
-pub fn train_step(net: &mut FastNet, adam: &mut Adam, x: &T4, y: &T4, lr: f32, delta: f32, eps: f32) -> f64 {
+/// One optimisation step: forward (sample i at time `ts[i]`; empty: the middle), Huber loss,
+/// backward, Adam. Returns the loss before the step; a non-finite loss leaves the network and the
+/// optimizer untouched.
+#[allow(clippy::too_many_arguments)]
+pub fn train_step(net: &mut FastNet, adam: &mut Adam, x: &T4, ts: &[f32], y: &T4, lr: f32, delta: f32, eps: f32) -> f64 {
     net.zero_grad();
-    let out = net.forward_train(x);
+    let out = net.forward_train_at(x, ts);
     let (loss, dout) = huber(&out, y, delta);
     if loss.is_finite() {
         net.backward(&dout);

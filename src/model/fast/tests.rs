@@ -119,16 +119,23 @@ fn transposed_convolution_matches_burn() {
 
 /// Every parameter gradient of a whole network against burn's autodiff.
 fn network_gradients_match(arch: crate::model::Arch, n: usize, h: usize, w: usize) {
-    let net = Net::seeded(arch, &ad(), 11);
+    network_gradients_match_at(Net::seeded(arch, &ad(), 11), &[], n, h, w);
+}
+
+/// [`network_gradients_match`] for `net`, sample i at time `ts[i]` (empty: the middle).
+fn network_gradients_match_at(net: Net, ts: &[f32], n: usize, h: usize, w: usize) {
+    let arch = if net.is_burst() { "burst" } else { "single" };
     let x = rand(n, 3, h, w, 5);
     let y = rand(n, 3, h, w, 6);
+    let mid = vec![crate::model::MIDDLE; n];
+    let bts = if ts.is_empty() { &mid[..] } else { ts };
     // burn
-    let out = net.forward(x.to_tensor(&ad()));
+    let out = net.forward_at(x.to_tensor(&ad()), bts);
     let loss = burn::nn::loss::HuberLossConfig::new(0.02).init().forward(out.clone(), y.to_tensor(&ad()), burn::nn::loss::Reduction::Mean);
     let gp = GradientsParams::from_grads(loss.backward(), &net);
     // ours
     let mut f = FastNet::from_net(&net);
-    let fo = f.forward_train(&x);
+    let fo = f.forward_train_at(&x, ts);
     assert!(rel(&fo.d, &vecf(out)) < 1e-4, "{arch:?} forward");
     let (fl, d) = huber(&fo, &y, 0.02);
     assert!((fl - loss.into_scalar::<f32>() as f64).abs() < 1e-6 * fl.abs().max(1e-3), "{arch:?} loss");
@@ -166,6 +173,52 @@ fn gradients_match_burn_where_winograd_takes_the_forward_and_input_gradient() {
     // Two samples: with one, the 2 x 2 level's BatchNorm sees 4 values per channel, and the
     // comparison failed once (6.6e-3) among the other tests while it passed alone.
     network_gradients_match(crate::model::Arch::Unet { base: 16 }, 2, 32, 32);
+}
+
+#[test]
+fn burst_unet_gradients_match_burn_at_other_times_for_each_sample() {
+    let dev = ad();
+    let mut net = Net::seeded(crate::model::Arch::BurstUnet { base: 4 }, &dev, 11);
+    // A time conditioning off zero (its start), so that the output depends on the time.
+    let Net::Unet(u) = &mut net else { unreachable!() };
+    let film = u.film.as_mut().expect("a burst U-Net");
+    let shape = [crate::model::TIME_FEATURES, 8];
+    let r = |seed: u64| {
+        let v = rand(1, 1, shape[0], shape[1], seed).d.iter().map(|v| v * 0.3).collect::<Vec<f32>>();
+        burn::module::Param::from_tensor(Tensor::<2>::from_data(TensorData::new(v, shape), &dev))
+    };
+    (film.gamma, film.beta) = (r(7), r(8));
+    let f = FastNet::from_net(&net);
+    let x = rand(2, 3, 20, 24, 1);
+    let (a, b) = (f.forward_at(&x, &[0.1, 0.9]), f.forward_at(&x, &[0.9, 0.1]));
+    assert!(rel(&a.d, &b.d) > 1e-3, "the time changes nothing");
+    network_gradients_match_at(net, &[0.05, 0.95], 2, 20, 24);
+}
+
+#[test]
+fn a_burst_units_trunk_runs_once_and_gives_what_each_time_alone_gives() {
+    let dev = Device::flex();
+    let net = Net::seeded(crate::model::Arch::BurstUnet { base: 4 }, &dev, 3);
+    let mut f = FastNet::from_net(&net);
+    f.params(&mut |p, _| {
+        if p.len() == crate::model::TIME_FEATURES * 8 {
+            p.iter_mut().enumerate().for_each(|(i, v)| *v = (crate::rng::unit(crate::rng::hash(&[9, i as u64])) as f32 - 0.5) * 0.6);
+        }
+    });
+    let x = rand(1, 3, 21, 30, 2);
+    let ts = [0.0625, 0.5, 0.9375];
+    let burst = f.forward_burst(&x, &ts);
+    for (t, y) in ts.iter().zip(&burst) {
+        assert_eq!(y.d, f.forward_at(&x, &[*t]).d, "t = {t}");
+    }
+    let theirs =
+        vecf(f.write_into(Net::seeded(crate::model::Arch::BurstUnet { base: 4 }, &dev, 4)).forward_at(x.to_tensor(&dev), &[0.0625]));
+    assert!(rel(&burst[0].d, &theirs) < 1e-4);
+    // At the middle, a burst U-Net made from a U-Net is that U-Net.
+    let unet = Net::seeded(crate::model::Arch::Unet { base: 4 }, &dev, 5);
+    let want = FastNet::from_net(&unet).forward(&x);
+    let got = FastNet::from_net(&unet.into_burst(&dev)).forward_burst(&x, &ts);
+    assert!(got.iter().all(|y| y.d == want.d));
 }
 
 #[test]
@@ -239,7 +292,7 @@ fn train_steps(mut f: FastNet, steps: usize) -> (Vec<f64>, FastNet) {
     let mut losses = Vec::new();
     for s in 0..steps as u64 {
         let (x, y) = (rand(4, 3, 16, 16, 200 + s % 3), rand(4, 3, 16, 16, 300 + s % 3));
-        losses.push(train_step(&mut f, &mut adam, &x, &y, 1e-3, 0.02, 1e-8));
+        losses.push(train_step(&mut f, &mut adam, &x, &[], &y, 1e-3, 0.02, 1e-8));
     }
     (losses, f)
 }

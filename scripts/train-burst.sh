@@ -1,0 +1,49 @@
+#!/usr/bin/env bash
+# The burst pair (models/README.md): burst shards at N = 9 for each camera (the same photographs,
+# motions, noise and patches; only the camera differs), then a burst U-Net per camera on identical
+# data, seeds, order and steps, each started from the shipped single-frame U-Net of its camera
+# (`init`: the same weights, the time conditioning at zero). One thread each at the lowest
+# priority, so the two run side by side on a 2-core machine; checkpoints every 250 steps, and the
+# same command again resumes where a run stopped.
+#
+#   bash scripts/train-burst.sh shards                 # both cameras' burst shards ($DATA/shards/burst-*)
+#   bash scripts/train-burst.sh phase_coded            # one run ($RUNS/burst-unet32-phase_coded)
+#   DATA=../data RUNS=../runs STEPS=20000 WIDTH=32 bash scripts/train-burst.sh conventional
+#
+# Needs the photographs of docs/training-data.sh (STEP=photos bash docs/training-data.sh).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+WHAT=${1:?shards, phase_coded or conventional}
+DATA=${DATA:-../data}
+RUNS=${RUNS:-../runs}
+STEPS=${STEPS:-20000}
+WIDTH=${WIDTH:-32}
+LR=${LR:-3e-4}
+WARMUP=${WARMUP:-200}
+PIPELINE=${PIPELINE:-target/release/pipeline}
+
+if [ "$WHAT" = shards ]; then
+  for cam in phase_coded conventional; do
+    d="$DATA/shards/burst-$cam-n9"
+    [ -f "$d/manifest.json" ] && continue
+    nice -n 10 "$PIPELINE" run pipelines/train-data.toml -o "$d" --progress never --set seed=${SEED:-31} \
+      --set transforms.blur.window=9 --set transforms.blur.burst=true --set sources.stills.frames=72 \
+      --set transforms.blur.camera.type=$cam --set sinks.shards.prefix=burst-n9 \
+      --set "sources.stills.paths=[\"$DATA/photos/train\"]" --set "sources.stills.motion.object_paths=[\"$DATA/objects\"]"
+  done
+  exit 0
+fi
+
+case "$WHAT" in
+  phase_coded) init=models/unet$WIDTH-coded ;;
+  conventional) init=models/unet$WIDTH-conventional ;;
+  *) echo "train-burst.sh: $WHAT: expected shards, phase_coded or conventional" >&2; exit 2 ;;
+esac
+dir="$RUNS/burst-unet$WIDTH-$WHAT"
+resume=(); [ -f "$dir/latest.json" ] && resume=(--resume)
+RAYON_NUM_THREADS=${THREADS:-1} exec nice -n 19 "$PIPELINE" train --config pipelines/train.toml "${resume[@]}" --progress never \
+  --set model.type='"burst_unet"' --set model.base="$WIDTH" --set "init=\"$init\"" \
+  --set "data.shards=[\"$DATA/shards/burst-$WHAT-n9/*.tar\"]" --set data.val_fraction=0.1 --set data.shuffle_buffer=1024 \
+  --set optim.steps="$STEPS" --set optim.lr="$LR" --set optim.lr_min_factor=0.05 --set optim.warmup_steps="$WARMUP" \
+  --set validate.every=500 --set validate.max_samples=256 \
+  --set output.checkpoint_every=250 --set output.average_last=4 --set "output.dir=\"$dir\""
