@@ -1,6 +1,7 @@
 //! Integration tests: one binary (links once), one module per capability.
 
 mod bad_input;
+mod burst;
 mod common;
 #[cfg(feature = "train")]
 mod deblur;
