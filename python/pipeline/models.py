@@ -7,9 +7,15 @@ train`` can be fine-tuned or deployed in PyTorch and one trained here read back 
     net = load("unet16.safetensors").eval()          # written by `pipeline export MODEL -o ...`
     y = net(x)                                       # x: (n, 3, h, w) encoded sRGB in [0, 1]
 
-The U-Net needs sides divisible by 16 (pad first, as ``pipeline deblur`` does). The output is
-the input plus the predicted residual, not clamped.
+Any frame size works (edges repeated to a multiple of 16 and cropped back, as ``pipeline
+deblur`` does). The output is the input plus the predicted residual, not clamped.
+
+A burst U-Net (``pipeline train`` with ``model.type = "burst_unet"``) also takes the time:
+``net(x, t)`` with ``t`` in [0, 1] (a float or one per sample) is the sharp image at that
+fraction of the exposure; ``net(x)`` is the middle.
 """
+
+import math
 
 import json
 
@@ -41,17 +47,44 @@ class Up(nn.Module):
         return self.conv(torch.cat([s, self.up(x)], 1))
 
 
-class UNet(nn.Module):
-    """The paper's U-Net: ``b`` filters at full resolution (64 in the paper), four poolings."""
+def time_features(t):
+    """The features of times ``t`` (a tensor in [0, 1]) the burst U-Net is conditioned on: with
+    s = 2t - 1, s and sin, cos of (j pi s) for j = 1 to 4 (9 per time), as ``pipeline``'s."""
+    s = 2 * t - 1
+    f = [s]
+    for j in range(1, 5):
+        f += [torch.sin(math.pi * j * s), torch.cos(math.pi * j * s)]
+    return torch.stack(f, -1)
 
-    def __init__(self, b):
+
+class Film(nn.Module):
+    """Time conditioning: ``x * (1 + f(t) @ weight) + f(t) @ bias`` per channel; both start at zero."""
+
+    def __init__(self, c):
+        super().__init__()
+        self.weight = nn.Parameter(torch.zeros(9, c))
+        self.bias = nn.Parameter(torch.zeros(9, c))
+
+    def forward(self, x, t):
+        f = time_features(t)
+        n, c = x.shape[:2]
+        return x * (1 + f @ self.weight).view(n, c, 1, 1) + (f @ self.bias).view(n, c, 1, 1)
+
+
+class UNet(nn.Module):
+    """The paper's U-Net: ``b`` filters at full resolution (64 in the paper), four poolings;
+    ``burst=True``: told the time on its last level (``Film``), the burst U-Net."""
+
+    def __init__(self, b, burst=False):
         super().__init__()
         self.inc = DoubleConv(3, b)
         self.downs = nn.ModuleList([DoubleConv(i, o) for i, o in [(b, 2 * b), (2 * b, 4 * b), (4 * b, 8 * b), (8 * b, 8 * b)]])
         self.ups = nn.ModuleList([Up(8 * b, 8 * b, 4 * b), Up(4 * b, 4 * b, 2 * b), Up(2 * b, 2 * b, b), Up(b, b, b)])
         self.outc = nn.Conv2d(b, 3, 1)
+        if burst:
+            self.film = Film(2 * b)
 
-    def forward(self, x):
+    def forward(self, x, t=0.5):
         # Any frame size: edges repeated up to a multiple of 16 (four poolings) and cropped back,
         # as `pipeline deblur` does.
         h, w = x.shape[-2:]
@@ -61,8 +94,13 @@ class UNet(nn.Module):
         for d in self.downs:
             xs.append(d(nn.functional.max_pool2d(xs[-1], 2)))
         y = xs.pop()
-        for u in self.ups:
-            y = u(y, xs.pop())
+        for i, u in enumerate(self.ups):
+            s = xs.pop()
+            if i == len(self.ups) - 1 and hasattr(self, "film"):
+                t = torch.as_tensor(t, dtype=x.dtype, device=x.device).expand(x.shape[0])
+                y = u.conv(self.film(torch.cat([s, u.up(y)], 1), t))
+            else:
+                y = u(y, s)
         return (xp + self.outc(y))[..., :h, :w]
 
 
@@ -85,6 +123,8 @@ def build(arch):
     """A fresh network of ``arch``: ``{"type": "unet", "base": 16}`` or ``{"type": "shallow", "width": 32}``."""
     if arch.get("type") == "unet":
         return UNet(int(arch["base"]))
+    if arch.get("type") == "burst_unet":
+        return UNet(int(arch["base"]), burst=True)
     if arch.get("type") == "shallow":
         return Shallow(int(arch["width"]))
     raise ValueError(f"unknown architecture {arch!r}")
@@ -100,7 +140,8 @@ def load(path):
     if "arch" in meta:
         arch = json.loads(meta["arch"])
     elif "inc.a.0.weight" in tensors:
-        arch = {"type": "unet", "base": tensors["inc.a.0.weight"].shape[0]}
+        kind = "burst_unet" if "film.weight" in tensors else "unet"
+        arch = {"type": kind, "base": tensors["inc.a.0.weight"].shape[0]}
     elif "blocks.0.0.weight" in tensors:
         arch = {"type": "shallow", "width": tensors["blocks.0.0.weight"].shape[0]}
     else:

@@ -223,6 +223,7 @@ pub fn from_torch(bytes: &[u8], name: &str) -> Result<Option<Vec<u8>>> {
     let arch: crate::model::Arch = match meta.get("arch").and_then(|a| a.as_str()).and_then(|a| serde_json::from_str(a).ok()) {
         Some(a) => a,
         None => match (shape_of("inc.a.0.weight"), shape_of("blocks.0.0.weight")) {
+            (Some(s), _) if shape_of("film.weight").is_some() => crate::model::Arch::BurstUnet { base: s[0] },
             (Some(s), _) => crate::model::Arch::Unet { base: s[0] },
             (None, Some(s)) => crate::model::Arch::Shallow { width: s[0] },
             _ => {
