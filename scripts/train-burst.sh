@@ -28,7 +28,7 @@ if [ "$WHAT" = shards ]; then
     [ -f "$d/manifest.json" ] && continue
     nice -n 10 "$PIPELINE" run pipelines/train-data.toml -o "$d" --progress never --set seed=${SEED:-31} \
       --set transforms.blur.window=9 --set transforms.blur.burst=true --set sources.stills.frames=72 \
-      --set transforms.blur.camera.type=$cam --set sinks.shards.prefix=burst-n9 \
+      --set transforms.blur.camera.type=$cam --set sinks.shards.prefix=burst-n9 --set transforms.patches.per_window=2 \
       --set "sources.stills.paths=[\"$DATA/photos/train\"]" --set "sources.stills.motion.object_paths=[\"$DATA/objects\"]"
   done
   exit 0

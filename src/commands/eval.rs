@@ -266,7 +266,7 @@ fn cell(records: &[Record], video: Option<&str>, window: usize, sigma: Option<f6
 }
 
 /// The region scored in a `w x h` frame: a centred square of `crop`, or the whole frame.
-fn region(w: usize, h: usize, crop: usize) -> [usize; 4] {
+pub(crate) fn region(w: usize, h: usize, crop: usize) -> [usize; 4] {
     if crop == 0 || (crop >= w && crop >= h) {
         return [0, 0, w, h];
     }
@@ -284,7 +284,7 @@ fn side_by_side(path: &Path, w: usize, h: usize, panels: [&[u8]; 3], labels: [St
 }
 
 /// Decodes the frames `first..=last` of a video (stopping early at its end), tagged linear.
-fn read_frames(path: &Path, first: u64, last: u64, curve: Curve) -> Result<Vec<Arc<Frame>>> {
+pub(crate) fn read_frames(path: &Path, first: u64, last: u64, curve: Curve) -> Result<Vec<Arc<Frame>>> {
     let mut reader = VideoReader::open(path).map_err(Error::video(path))?;
     let mut out = Vec::new();
     let mut i = 0u64;
@@ -594,8 +594,45 @@ pub struct EvalArgs {
     /// Replace the eval.json and eval.md an earlier run left in the output folder (refused otherwise).
     #[arg(long)]
     pub overwrite: bool,
+    /// Score a burst model (`--model`): the sharp image at each sub-frame of every window against
+    /// that sub-frame (first, middle, last, all), per motion kind, with the direction score;
+    /// writes burst.json and burst.md.
+    #[arg(long)]
+    pub burst: bool,
+    /// With --burst: the single-frame model repeated for every sub-frame, as the baseline
+    /// (default: the shipped coded U-Net 32 for the coded camera, none for the others).
+    #[arg(long, requires = "burst")]
+    pub baseline: Option<std::path::PathBuf>,
     #[command(flatten)]
     pub file: super::ConfigArgs,
+}
+
+/// `pipeline eval --burst`.
+fn command_burst(
+    videos: Vec<String>,
+    out: std::path::PathBuf,
+    model: Option<std::path::PathBuf>,
+    camera: Option<crate::optics::CameraKind>,
+    baseline: Option<std::path::PathBuf>,
+    overwrite: bool,
+    file: super::ConfigArgs,
+) -> anyhow::Result<()> {
+    crate::io::paths::refuse_replacing(&out, &[out.join("burst.json"), out.join("burst.md")], overwrite)?;
+    let (table, origin) = file.load(crate::commands::eval::EVAL_TOML, "pipelines/eval.toml")?;
+    let mut f = crate::commands::eval::EvalFile::from_table(table, &origin)?;
+    if let Some(k) = camera {
+        f.camera.kind = k;
+    }
+    let (net, name) = crate::model::infer::load_burst(model.as_deref())?;
+    let single = match (&baseline, f.camera.kind) {
+        (Some(p), _) => Some(crate::model::infer::load(Some(p))?),
+        (None, crate::optics::CameraKind::PhaseCoded) => Some(crate::model::infer::load(None)?),
+        (None, _) => None,
+    };
+    let r = crate::commands::eval_burst::run(&f, &net, &name, single.as_ref().map(|(n, s)| (n, s.as_str())), &videos, &out, file.progress)?;
+    println!("{}", crate::commands::eval_burst::markdown(&r));
+    eprintln!("{} windows scored in {:.0} s -> {}", r.records.len(), r.seconds, out.join("burst.md").display());
+    Ok(())
 }
 
 /// Runs `pipeline eval`.
@@ -603,7 +640,10 @@ pub struct EvalArgs {
 /// # Errors
 /// Whatever the command reports (exit codes in `main.rs`).
 pub fn command(a: EvalArgs) -> anyhow::Result<()> {
-    let EvalArgs { videos, out, model, camera, versus, overwrite, file } = a;
+    let EvalArgs { videos, out, model, camera, versus, overwrite, burst, baseline, file } = a;
+    if burst {
+        return command_burst(videos, out, model, camera, baseline, overwrite, file);
+    }
     crate::io::paths::refuse_replacing(&out, &[out.join("eval.json"), out.join("eval.md")], overwrite)?;
     // Read first: a missing or foreign file is a usage error before any work.
     let versus = versus.map(|p| Versus::read(&p)).transpose()?;

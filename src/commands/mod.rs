@@ -6,6 +6,8 @@ pub mod bench;
 pub mod deblur;
 #[cfg(all(feature = "train", feature = "ffmpeg"))]
 pub mod eval;
+#[cfg(all(feature = "train", feature = "ffmpeg"))]
+pub mod eval_burst;
 #[cfg(feature = "train")]
 pub mod export;
 #[cfg(feature = "train")]

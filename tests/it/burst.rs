@@ -132,6 +132,36 @@ fn a_tiny_burst_model_trained_through_the_cli_deblurs_into_k_frames_in_order() {
         .output()
         .unwrap();
     assert_eq!(String::from_utf8_lossy(&probe.stdout).trim(), "720/1,6");
+    // eval --burst: every window scored at every sub-frame, the baseline beside it.
+    let ev = root.join("eval");
+    let o = run(&[
+        "eval",
+        FIXTURE,
+        "--burst",
+        "--model",
+        s(&model),
+        "-o",
+        s(&ev),
+        "--set",
+        "eval.windows=[9]",
+        "--set",
+        "eval.sigmas=[3.0]",
+        "--set",
+        "eval.windows_per_video=2",
+        "--set",
+        "eval.crop=64",
+        "--progress",
+        "never",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(ev.join("burst.json")).unwrap()).unwrap();
+    assert_eq!(r["records"].as_array().unwrap().len(), 2);
+    let rec = &r["records"][0];
+    // The pan moves the content: the capture matches its first and last sub-frames worse than
+    // its middle, and the single-frame baseline was run.
+    assert!(rec["blurred"]["middle"].as_f64().unwrap() > rec["blurred"]["first"].as_f64().unwrap(), "{rec}");
+    assert!(rec["single"]["all"].as_f64().is_some() && rec["right_order"].is_boolean(), "{rec}");
+    assert!(std::fs::read_to_string(ev.join("burst.md")).unwrap().contains("right order"));
     // A single-frame model is refused by name; so is a burst into one image file.
     let o = run(&[
         "deblur",
