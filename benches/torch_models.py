@@ -4,6 +4,7 @@ src/model/mod.rs, timed the same way (training step with Huber loss and Adam on 
 
 Usage: python3 benches/torch_models.py unet|shallow WIDTH BATCH REPEATS
        python3 benches/torch_models.py infer unet|shallow WIDTH HEIGHT FRAME_WIDTH REPEATS
+       python3 benches/torch_models.py burst WIDTH HEIGHT FRAME_WIDTH K REPEATS
 Skipped by `pipeline bench train` when torch is not installed.
 """
 import importlib.util, json, os, statistics, sys, time
@@ -41,7 +42,27 @@ def infer(kind, width, h, w, repeats):
     print(json.dumps({"threads": torch.get_num_threads(), "frames_per_s_median": 1.0 / statistics.median(times)}))
 
 
+def burst(width, h, w, k, repeats):
+    """K frames of a burst U-Net from one h x w capture, one forward per time as the network is
+    written (model(x, t)): seconds for the K frames, median of repeats."""
+    torch.manual_seed(7)
+    model = UNet(width, burst=True).eval()
+    x = torch.rand(1, 3, -(-h // 16) * 16, -(-w // 16) * 16)
+    times = []
+    with torch.no_grad():
+        for r in range(repeats + 1):
+            t = time.perf_counter()
+            for i in range(k):
+                model(x, (i + 0.5) / k)
+            if r:
+                times.append(time.perf_counter() - t)
+    print(json.dumps({"threads": torch.get_num_threads(), "k": k, "seconds_median": statistics.median(times)}))
+
+
 def main():
+    if sys.argv[1] == "burst":
+        burst(*(int(a) for a in sys.argv[2:7]))
+        return
     if sys.argv[1] == "infer":
         infer(sys.argv[2], int(sys.argv[3]), int(sys.argv[4]), int(sys.argv[5]), int(sys.argv[6]))
         return

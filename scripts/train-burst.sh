@@ -22,15 +22,19 @@ LR=${LR:-3e-4}
 WARMUP=${WARMUP:-200}
 PIPELINE=${PIPELINE:-target/release/pipeline}
 
+# Burst shards: 4 windows of 9 per photograph, 2 patches each (6,300 samples per camera from the
+# 786 crops, each with 9 targets: about 1.1 GB); the two cameras side by side, one thread each.
 if [ "$WHAT" = shards ]; then
   for cam in phase_coded conventional; do
     d="$DATA/shards/burst-$cam-n9"
     [ -f "$d/manifest.json" ] && continue
-    nice -n 10 "$PIPELINE" run pipelines/train-data.toml -o "$d" --progress never --set seed=${SEED:-31} \
-      --set transforms.blur.window=9 --set transforms.blur.burst=true --set sources.stills.frames=72 \
+    RAYON_NUM_THREADS=1 nice -n 10 "$PIPELINE" run pipelines/train-data.toml -o "$d" --progress never --set seed=${SEED:-31} \
+      --set transforms.blur.window=9 --set transforms.blur.burst=true --set sources.stills.frames=36 \
       --set transforms.blur.camera.type=$cam --set sinks.shards.prefix=burst-n9 --set transforms.patches.per_window=2 \
-      --set "sources.stills.paths=[\"$DATA/photos/train\"]" --set "sources.stills.motion.object_paths=[\"$DATA/objects\"]"
+      --set transforms.blur.threads=1 \
+      --set "sources.stills.paths=[\"$DATA/photos/train\"]" --set "sources.stills.motion.object_paths=[\"$DATA/objects\"]" &
   done
+  wait
   exit 0
 fi
 

@@ -19,12 +19,30 @@ pub struct DeblurSpeed {
     pub torch_over_ours: Option<f64>,
     /// The same against our whole-frame pass.
     pub torch_over_ours_whole: Option<f64>,
+    /// `--burst K`: the burst U-Net's K frames from one capture.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub burst: Option<BurstSpeed>,
+}
+
+/// The time of K frames from one capture (`bench deblur --burst K`), tiled as `deblur` runs.
+#[derive(Debug, serde::Serialize)]
+pub struct BurstSpeed {
+    pub k: usize,
+    /// K frames as `deblur --burst` makes them: the part of the network that does not depend
+    /// on the time once, the rest K times (median seconds).
+    pub burst_s_median: f64,
+    /// K whole passes, one per time (median seconds).
+    pub k_passes_s_median: f64,
+    /// `burst_s_median / k_passes_s_median` (the goal: under 0.5).
+    pub ratio: f64,
+    /// PyTorch CPU, the same network, one forward per time, whole frame (when installed).
+    pub torch: Option<serde_json::Value>,
 }
 
 /// `bench deblur`: frames/s of each shipped model on a `width x height` frame, whole and tiled,
 /// beside PyTorch on the same architecture when torch is installed.
-pub fn deblur(width: usize, height: usize, repeats: usize) -> crate::Result<Vec<DeblurSpeed>> {
-    use crate::model::infer::{run_frame, Tiling};
+pub fn deblur(width: usize, height: usize, repeats: usize, burst: Option<usize>) -> crate::Result<Vec<DeblurSpeed>> {
+    use crate::model::infer::{run_frame, run_frame_burst, Tiling};
     use crate::model::Arch;
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let script = torch_script();
@@ -41,6 +59,14 @@ pub fn deblur(width: usize, height: usize, repeats: usize) -> crate::Result<Vec<
     for name in &names {
         let path = root.join("models").join(name).join("model.safetensors");
         let (net, arch) = crate::train::load_model(&path, &device)?;
+        // With --burst, only U-Nets, each timed as a burst U-Net of its width (the weights do
+        // not change the time; a single-frame U-Net becomes one with its time conditioning at zero).
+        let (net, arch) = match (burst, arch) {
+            (None, a) => (net, a),
+            (Some(_), crate::model::Arch::BurstUnet { .. }) => (net, arch),
+            (Some(_), crate::model::Arch::Unet { base }) => (net.into_burst(&device), crate::model::Arch::BurstUnet { base }),
+            (Some(_), _) => continue,
+        };
         let net = crate::model::fast::FastNet::from_net(&net);
         let time = |tiling: Tiling| {
             let mut t = Vec::new();
@@ -81,6 +107,39 @@ pub fn deblur(width: usize, height: usize, repeats: usize) -> crate::Result<Vec<
                 None => "; torch not installed, no comparison".into(),
             }
         );
+        let burst = burst.map(|k| {
+            let ts: Vec<f32> = (0..k).map(|i| (i as f32 + 0.5) / k as f32).collect();
+            let med = |f: &dyn Fn()| {
+                let mut t = Vec::new();
+                for r in 0..repeats + 1 {
+                    let t0 = Instant::now();
+                    f();
+                    if r > 0 {
+                        t.push(t0.elapsed().as_secs_f64());
+                    }
+                }
+                median(&mut t)
+            };
+            let once = med(&|| {
+                std::hint::black_box(run_frame_burst(&net, &frame, width, height, Tiling::default(), &ts));
+            });
+            let passes = med(&|| {
+                for t in &ts {
+                    std::hint::black_box(run_frame_burst(&net, &frame, width, height, Tiling::default(), std::slice::from_ref(t)));
+                }
+            });
+            let torch = script.as_ref().and_then(|s| {
+                std::process::Command::new(python())
+                    .arg(s)
+                    .env("TORCH_THREADS", rayon::current_num_threads().to_string())
+                    .args(["burst", &arch.width().to_string(), &height.to_string(), &width.to_string(), &k.to_string(), &repeats.to_string()])
+                    .output()
+                    .ok()
+                    .and_then(|o| serde_json::from_slice(&o.stdout).ok())
+            });
+            eprintln!("bench: {name} as {} --burst {k}: {once:.2} s for {k} frames, {passes:.2} s for {k} passes ({:.2}x)", arch.name(), once / passes);
+            BurstSpeed { k, burst_s_median: once, k_passes_s_median: passes, ratio: once / passes, torch }
+        });
         out.push(DeblurSpeed {
             model: format!("models/{name}"),
             arch: arch.name(),
@@ -91,6 +150,7 @@ pub fn deblur(width: usize, height: usize, repeats: usize) -> crate::Result<Vec<
             torch: torch_row,
             torch_over_ours: ratio,
             torch_over_ours_whole: torch_fps.map(|t| t / whole),
+            burst,
         });
     }
     Ok(out)

@@ -90,6 +90,10 @@ pub enum BenchCommand {
         /// Repeats; the median is reported.
         #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u16).range(1..=1000))]
         repeats: u16,
+        /// Also time K frames from one capture with each U-Net as a burst U-Net: once through
+        /// `deblur --burst` (the time-independent part once) against K whole passes.
+        #[arg(long, value_name = "K", value_parser = clap::value_parser!(u16).range(2..=64))]
+        burst: Option<u16>,
     },
     /// Time to build the kernels of one window, cold (new camera) and from the cache.
     Psf {
@@ -176,8 +180,8 @@ pub fn command(c: BenchCommand) -> anyhow::Result<()> {
             Ok(())
         }
         #[cfg(feature = "train")]
-        BenchCommand::Deblur { width, height, repeats } => {
-            let r = deblur(width, height, repeats as usize)?;
+        BenchCommand::Deblur { width, height, repeats, burst } => {
+            let r = deblur(width, height, repeats as usize, burst.map(usize::from))?;
             println!("{}", serde_json::to_string_pretty(&r)?);
             Ok(())
         }
