@@ -37,6 +37,8 @@ pub enum FigureName {
     Dots,
     Spectrum,
     Spoke,
+    /// One capture and its burst (needs `burst-unet32-coded` and `-conventional` under --models).
+    Burst,
 }
 
 /// Settings shared by the figures.
@@ -57,6 +59,8 @@ pub struct FigureOptions {
     pub lr_iterations: usize,
     /// Regularisation of the flutter least squares.
     pub flutter_lambda: f64,
+    /// The high-frame-rate clip whose first nine frames the burst figure captures.
+    pub clip: PathBuf,
 }
 
 impl Default for FigureOptions {
@@ -70,6 +74,7 @@ impl Default for FigureOptions {
             models: PathBuf::from("models"),
             lr_iterations: 30,
             flutter_lambda: 1e-2,
+            clip: PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/fixtures/mandelbrot-pan-240fps.mp4")),
         }
     }
 }
@@ -122,7 +127,7 @@ const MARGIN: usize = 8;
 
 /// Lays panels out in a grid (`cols` wide), each scaled by `scale` (nearest), with its label
 /// above and a title line on top; writes the PNG.
-fn compose(path: &Path, title: &str, panels: &[Panel], cols: usize, scale: usize) -> Result<()> {
+pub(crate) fn compose(path: &Path, title: &str, panels: &[Panel], cols: usize, scale: usize) -> Result<()> {
     let cw = panels.iter().map(|p| p.w * scale).max().unwrap_or(0).max(160);
     let ch = panels.iter().map(|p| p.h * scale).max().unwrap_or(0);
     let rows = panels.len().div_ceil(cols);
@@ -387,16 +392,18 @@ fn spoke(o: &FigureOptions, out: &Path) -> Result<Vec<Score>> {
 
 /// Markdown table of a spoke figure's scores.
 pub fn scores_markdown(r: &FigureReport) -> String {
-    let mut s = format!(
-        "# pipeline figure {:?}\n\n![{}]({})\n\nSpoke target {} px, rim travel {} px over {} sub-frames. Against the sharp mid-exposure frame; {}.\n\n",
-        r.figure,
-        r.png,
-        r.png,
-        r.options.size,
-        r.options.travel_px,
-        r.options.frames,
-        r.convention
-    );
+    let what = match r.figure {
+        FigureName::Burst => format!(
+            "The first nine frames of {} ({} px crop), each burst output against its own sub-frame",
+            r.options.clip.display(),
+            r.options.size
+        ),
+        _ => format!(
+            "Spoke target {} px, rim travel {} px over {} sub-frames. Against the sharp mid-exposure frame",
+            r.options.size, r.options.travel_px, r.options.frames
+        ),
+    };
+    let mut s = format!("# pipeline figure {:?}\n\n![{}]({})\n\n{what}; {}.\n\n", r.figure, r.png, r.png, r.convention);
     s.push_str(
         "| camera | sigma | captured PSNR / SSIM | reconstruction | reconstructed PSNR / SSIM | gain dB |\n|---|---|---|---|---|---|\n",
     );
@@ -429,6 +436,10 @@ pub fn draw(name: FigureName, o: &FigureOptions, out: &Path) -> Result<FigureRep
         FigureName::Dots => dots(o, out)?,
         FigureName::Spectrum => spectrum(o, out)?,
         FigureName::Spoke => spoke(o, out)?,
+        #[cfg(feature = "ffmpeg")]
+        FigureName::Burst => crate::commands::figure_burst::burst_strip(o, &o.clip, out)?,
+        #[cfg(not(feature = "ffmpeg"))]
+        FigureName::Burst => return Err(Error::Usage("figure burst reads a video: it needs a build with the `ffmpeg` feature".into())),
     };
     let r = FigureReport {
         figure: name,
@@ -437,7 +448,7 @@ pub fn draw(name: FigureName, o: &FigureOptions, out: &Path) -> Result<FigureRep
         scores,
         convention: crate::metrics::CONVENTION,
     };
-    if name == FigureName::Spoke {
+    if matches!(name, FigureName::Spoke | FigureName::Burst) {
         let json = serde_json::to_vec_pretty(&r).expect("json");
         write_atomic(&out.with_extension("json"), |w| w.write_all(&json))?;
         let md = scores_markdown(&r);
@@ -538,6 +549,10 @@ pub struct FigureArgs {
     /// see the scene beyond the frame, so plain least squares is singular there.
     #[arg(long, default_value_t = 1e-2)]
     pub flutter_lambda: f64,
+    /// burst: the high-frame-rate clip whose first nine frames are captured (default: the
+    /// shipped 240 fps fixture).
+    #[arg(long)]
+    pub clip: Option<PathBuf>,
 }
 
 /// Runs `pipeline figure`.
@@ -545,7 +560,7 @@ pub struct FigureArgs {
 /// # Errors
 /// Whatever the command reports (exit codes in `main.rs`).
 pub fn command(a: FigureArgs) -> anyhow::Result<()> {
-    let FigureArgs { name, out, sigma, travel, size, models, seed, lr_iterations, flutter_lambda } = a;
+    let FigureArgs { name, out, sigma, travel, size, models, seed, lr_iterations, flutter_lambda, clip } = a;
     if !(0.0..=50.0).contains(&sigma) || !(0.0..=200.0).contains(&travel) || !(32..=2048).contains(&size) {
         return Err(crate::Error::Usage("--sigma must be in 0..50, --travel in 0..200 and --size in 32..2048".into()).into());
     }
@@ -560,6 +575,7 @@ pub fn command(a: FigureArgs) -> anyhow::Result<()> {
         seed,
         lr_iterations: lr_iterations as usize,
         flutter_lambda,
+        clip: clip.unwrap_or_else(|| crate::commands::figure::FigureOptions::default().clip),
         ..Default::default()
     };
     let r = crate::commands::figure::draw(name, &o, &out)?;

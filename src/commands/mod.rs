@@ -12,6 +12,8 @@ pub mod eval_burst;
 pub mod export;
 #[cfg(feature = "train")]
 pub mod figure;
+#[cfg(all(feature = "train", feature = "ffmpeg"))]
+pub mod figure_burst;
 pub mod generate;
 pub mod psf;
 #[cfg(feature = "train")]
