@@ -141,11 +141,15 @@ pub fn apply_sets(table: &mut toml::Table, sets: &[String]) -> Result<(), String
 /// # Errors
 /// See above.
 pub fn load(path: &Path, sets: &[String]) -> Result<toml::Table, crate::Error> {
-    let text = std::fs::read_to_string(path).map_err(|e| match e.kind() {
+    let bytes = crate::io::paths::read_regular(path, crate::io::paths::MAX_CONFIG_BYTES, "TOML settings file").map_err(|e| match e {
         // A config that is not there is a mistake in the command line: exit 2.
-        std::io::ErrorKind::NotFound => crate::Error::Usage(format!("{}: no such configuration file", path.display())),
-        _ => crate::Error::Io { path: path.to_path_buf(), cause: e },
+        crate::Error::Io { cause, .. } if cause.kind() == std::io::ErrorKind::NotFound => {
+            crate::Error::Usage(format!("{}: no such configuration file", path.display()))
+        }
+        e => e,
     })?;
+    let text = String::from_utf8(bytes)
+        .map_err(|_| crate::Error::File { path: path.to_path_buf(), why: "not UTF-8 text; expected a TOML settings file".into() })?;
     parse(&text, &path.display().to_string(), sets)
 }
 

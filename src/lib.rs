@@ -16,6 +16,29 @@
 // more plainly than zipped iterators; and they take their sizes as plain arguments.
 #![allow(clippy::needless_range_loop, clippy::too_many_arguments, clippy::type_complexity)]
 
+/// `eprintln!` that never panics (it shadows the standard one in this crate): a closed stderr
+/// (`pipeline generate ... 2>&1 | head -c1`) loses the messages, not the work.
+macro_rules! eprintln {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stderr(), $($t)*);
+    }};
+}
+
+/// `println!` that never panics (it shadows the standard one in this crate): when stdout is a
+/// pipe its reader closed (`pipeline psf ... | head -1`), there is no one left to read the
+/// result, and the process ends with 0, as ripgrep does.
+macro_rules! println {
+    ($($t:tt)*) => {{
+        use std::io::Write as _;
+        if let Err(e) = writeln!(std::io::stdout(), $($t)*) {
+            if e.kind() == std::io::ErrorKind::BrokenPipe {
+                std::process::exit(0);
+            }
+        }
+    }};
+}
+
 pub mod checks;
 pub mod cli;
 pub mod commands;

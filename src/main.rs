@@ -2,6 +2,7 @@
 //! (0 ok, 1 the work failed, 2 usage or configuration error, 130 interrupted).
 
 use clap::Parser;
+use std::io::Write;
 
 fn main() {
     let cli = pipeline::cli::Cli::parse();
@@ -11,7 +12,8 @@ fn main() {
             Some(pipeline::Error::Interrupted(_)) => 130,
             _ => 1,
         };
-        eprintln!("error: {e:#}");
+        // A closed stderr loses the message, never the exit code.
+        let _ = writeln!(std::io::stderr(), "error: {e:#}");
         std::process::exit(code);
     }
 }

@@ -22,6 +22,11 @@ pub struct Provenance {
 
 impl Provenance {
     /// Now, for this process.
+    /// The provenance of a command that started `ago` before now.
+    pub fn started_ago(ago: std::time::Duration) -> Provenance {
+        Provenance { started: utc(SystemTime::now().checked_sub(ago).unwrap_or(SystemTime::now())), ..Provenance::now() }
+    }
+
     pub fn now() -> Provenance {
         let commit = env!("PIPELINE_GIT_COMMIT");
         Provenance {

@@ -52,15 +52,29 @@ impl DeblurFile {
         let f: DeblurFile = toml::Value::Table(table)
             .try_into()
             .map_err(|e: toml::de::Error| Error::ConfigText(format!("{origin}: {}", e.to_string().trim())))?;
-        let mut c = crate::checks::Checker::new("deblur");
-        c.range_usize("tile", f.deblur.tile, 16, 8192);
-        if f.deblur.overlap * 2 > f.deblur.tile {
-            c.fail("overlap", format!("{} is more than half the tile ({})", f.deblur.overlap, f.deblur.tile));
-        }
-        if !c.errors.is_empty() {
-            return Err(Error::Config(c.errors));
-        }
+        f.deblur.check("deblur")?;
         Ok(f)
+    }
+}
+
+impl DeblurConfig {
+    /// The values' rules, for the file's keys (`deblur.tile`, prefix `deblur`) and the flags that
+    /// override them (`--tile`, prefix `""` and the keys `--tile`, `--overlap`) alike.
+    ///
+    /// # Errors
+    /// Every broken rule, each naming its key (under `prefix`).
+    pub fn check(&self, prefix: &str) -> Result<()> {
+        let mut c = crate::checks::Checker::new(prefix);
+        let (tile, overlap) = if prefix.is_empty() { ("--tile", "--overlap") } else { ("tile", "overlap") };
+        c.range_usize(tile, self.tile, 16, 8192);
+        if self.overlap * 2 > self.tile {
+            c.fail(overlap, format!("{} is more than half the tile ({})", self.overlap, self.tile));
+        }
+        if c.errors.is_empty() {
+            Ok(())
+        } else {
+            Err(Error::Config(c.errors))
+        }
     }
 }
 
@@ -121,7 +135,7 @@ impl DeblurReport {
     ) -> DeblurReport {
         let seconds = t0.elapsed().as_secs_f64();
         DeblurReport {
-            provenance: crate::provenance::Provenance::now(),
+            provenance: crate::provenance::Provenance::started_ago(t0.elapsed()),
             input: input.display().to_string(),
             output: output.display().to_string(),
             model: model.into(),
@@ -399,7 +413,7 @@ fn deblur_image_at(
         lost.push(format!("{} samples written as 8 bits", if float { "float" } else { "16-bit" }));
     }
     let curve = crate::optics::transfer::Curve::Srgb;
-    run_rows_at(net, w, h, tiling, times, &|i, c| pic.encoded(i, c), &mut |k, y, row| {
+    let whole = run_rows_at(net, w, h, tiling, times, &|i, c| pic.encoded(i, c), &mut |k, y, row| {
         for x in 0..w {
             let (i, rgb) = (y * w + x, &row[x * 3..x * 3 + 3]);
             match &mut canvases[k] {
@@ -411,6 +425,9 @@ fn deblur_image_at(
         }
     });
     drop(pic);
+    if !whole {
+        return Err(Error::Interrupted(format!("{}: stopped by a signal before its last tile; nothing written for it", src.display())));
+    }
     for (dst, canvas) in dsts.iter().zip(&canvases) {
         write_canvas(dst, dst_ext, w, h, canvas)?;
     }
@@ -528,6 +545,10 @@ pub fn images_at(
                     bar.println(&format!("note: {}: {what}", f.display()));
                     changed.push(Changed { path: f.display().to_string(), what });
                 }
+            }
+            Err(Error::Interrupted(_)) => {
+                interrupted = true;
+                break;
             }
             Err(e) => {
                 let msg = e.to_string();
@@ -716,6 +737,10 @@ pub fn command(a: DeblurArgs) -> anyhow::Result<()> {
     let mut d = crate::commands::deblur::DeblurFile::from_table(table, &origin)?.deblur;
     d.tile = tile.unwrap_or(d.tile);
     d.overlap = overlap.unwrap_or(d.overlap);
+    // The flags obey the keys' rules (`--tile 0` used to run with tiles of 16).
+    if tile.is_some() || overlap.is_some() {
+        d.check("")?;
+    }
     let lossless = lossless || d.lossless;
     let model = model.or_else(|| (!d.model.is_empty()).then(|| PathBuf::from(&d.model)));
     let (net, name) = match burst {

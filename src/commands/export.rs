@@ -41,7 +41,7 @@ pub fn command(a: ExportArgs) -> anyhow::Result<()> {
     let name = path.display().to_string();
     crate::io::paths::refuse_replacing_inputs(std::slice::from_ref(&a.out), &[path.clone(), a.model.clone()])?;
     crate::io::paths::refuse_replacing(&a.out, std::slice::from_ref(&a.out), a.overwrite)?;
-    let bytes = std::fs::read(&path).map_err(|e| Error::Io { path: path.clone(), cause: e })?;
+    let bytes = crate::io::paths::read_regular(&path, crate::io::paths::MAX_MODEL_BYTES, "safetensors model file")?;
     // F32 with pipeline's names, whatever the file holds; refuse what `deblur` would refuse
     // (wrong architecture, non-finite weights).
     let native = canonical(&bytes, &name)?;

@@ -212,7 +212,7 @@ pub fn command(a: PsfArgs) -> anyhow::Result<()> {
         optics.ref_wavelength_nm,
         t0.elapsed().as_secs_f64()
     );
-    print!("{}", table(&rows, window));
+    println!("{}", table(&rows, window).trim_end_matches('\n'));
     if !window {
         for (psi, from, to) in transitions(&rows) {
             println!("sharpest channel changes {from} -> {to} near psi {psi:.2}");

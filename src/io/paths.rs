@@ -18,7 +18,7 @@ pub fn expand_paths(paths: &[String], exts: &[&str]) -> Result<Vec<PathBuf>, cra
             let before = out.len();
             for e in rd.flatten() {
                 let n = e.file_name().to_string_lossy().into_owned();
-                if glob_match(&name, &n) {
+                if glob_match(&name, &n) && std::fs::metadata(e.path()).is_ok_and(|m| m.is_file()) {
                     out.push(e.path());
                 }
             }
@@ -27,13 +27,22 @@ pub fn expand_paths(paths: &[String], exts: &[&str]) -> Result<Vec<PathBuf>, cra
             }
         } else if path.is_dir() {
             let rd = std::fs::read_dir(&path).map_err(|e| crate::Error::Io { path: path.clone(), cause: e })?;
+            let before = out.len();
             for e in rd.flatten() {
                 let ext = e.path().extension().map(|x| x.to_string_lossy().to_ascii_lowercase()).unwrap_or_default();
-                if exts.contains(&ext.as_str()) {
+                // Regular files only (a link to one too): a FIFO or device named `x.mp4` would
+                // block the decoder forever.
+                if exts.contains(&ext.as_str()) && std::fs::metadata(e.path()).is_ok_and(|m| m.is_file()) {
                     out.push(e.path());
                 }
             }
+            if out.len() == before {
+                return Err(crate::Error::Usage(format!("{p}: a folder with no file to read in it ({})", exts.join(", "))));
+            }
         } else {
+            if p != "-" && std::fs::metadata(&path).is_ok_and(|m| !m.is_file()) {
+                return Err(crate::Error::Usage(format!("{p}: not a regular file (a FIFO or a device); give a file or a folder")));
+            }
             out.push(path);
         }
     }
@@ -119,6 +128,40 @@ pub fn refuse_replacing_inputs(outputs: &[PathBuf], inputs: &[PathBuf]) -> Resul
     }
     Ok(())
 }
+
+/// Reads `path` whole when it is a regular file of at most `max` bytes: a device (`/dev/zero`),
+/// a FIFO or a file larger than anything of its kind is refused by name before a byte is read,
+/// so a mistaken path can neither hang the command nor fill the memory.
+///
+/// # Errors
+/// Missing or unreadable (an I/O error naming it); not a regular file, or too large
+/// ([`crate::Error::File`] saying which, with `what` the kind of file expected).
+pub fn read_regular(path: &Path, max: u64, what: &str) -> Result<Vec<u8>, crate::Error> {
+    use std::io::Read;
+    let io = |e| crate::Error::Io { path: path.to_path_buf(), cause: e };
+    let meta = std::fs::metadata(path).map_err(io)?;
+    if !meta.is_file() {
+        return Err(crate::Error::File { path: path.to_path_buf(), why: format!("not a regular file; expected {what}") });
+    }
+    if meta.len() > max {
+        return Err(crate::Error::File {
+            path: path.to_path_buf(),
+            why: format!("{} bytes, more than any {what} ({max} at most)", meta.len()),
+        });
+    }
+    let mut v = Vec::with_capacity(meta.len() as usize);
+    // `take` keeps the bound if the file grows while it is read.
+    std::fs::File::open(path).map_err(io)?.take(max + 1).read_to_end(&mut v).map_err(io)?;
+    if v.len() as u64 > max {
+        return Err(crate::Error::File { path: path.to_path_buf(), why: format!("grew past {max} bytes while read; expected {what}") });
+    }
+    Ok(v)
+}
+
+/// The largest model file any command reads (a U-Net 64 in F32 is 59 MB).
+pub const MAX_MODEL_BYTES: u64 = 1 << 30;
+/// The largest settings file (TOML, JSON) any command reads.
+pub const MAX_CONFIG_BYTES: u64 = 16 << 20;
 
 fn glob_match(pat: &str, s: &str) -> bool {
     let (p, s): (Vec<char>, Vec<char>) = (pat.chars().collect(), s.chars().collect());

@@ -114,7 +114,7 @@ pub fn load_model(path: &Path, device: &Device) -> Result<(Net, Arch)> {
     } else {
         path
     };
-    let bytes = std::fs::read(path).map_err(|e| Error::Io { path: path.to_path_buf(), cause: e })?;
+    let bytes = crate::io::paths::read_regular(path, crate::io::paths::MAX_MODEL_BYTES, "safetensors model file")?;
     load_model_bytes(&bytes, &path.display().to_string(), device)
 }
 

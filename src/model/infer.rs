@@ -78,15 +78,16 @@ pub fn run_rows(
     tiling: Tiling,
     input: &(dyn Fn(usize, usize) -> f32 + Sync),
     emit: &mut dyn FnMut(usize, &[f32]),
-) {
-    run_rows_at(net, w, h, tiling, None, input, &mut |_, y, row| emit(y, row));
+) -> bool {
+    run_rows_at(net, w, h, tiling, None, input, &mut |_, y, row| emit(y, row))
 }
 
 /// [`run_rows`] for a burst: with `times`, the network's output at each of them, from one pass
 /// of the part that does not depend on the time per tile ([`FastNet::forward_burst`]);
 /// `emit(k, y, row)` receives row `y` of output `k` (rows in order, outputs in order for each
 /// row). `None`: the one output of [`FastNet::forward`], as output 0. Memory: the tile's pass
-/// plus a row of tiles per output.
+/// plus a row of tiles per output. Returns false when SIGINT or SIGTERM ([`crate::signal`])
+/// stopped it between two tiles (the rows emitted so far are whole; the rest never come).
 pub fn run_rows_at(
     net: &FastNet,
     w: usize,
@@ -95,7 +96,7 @@ pub fn run_rows_at(
     times: Option<&[f32]>,
     input: &(dyn Fn(usize, usize) -> f32 + Sync),
     emit: &mut dyn FnMut(usize, usize, &[f32]),
-) {
+) -> bool {
     let outputs = times.map_or(1, <[f32]>::len);
     let (t, o) = (tiling.tile.max(16), tiling.overlap.min(tiling.tile / 2));
     let ((tw, xs), (th, ys)) = (tiles_1d(w, t, o), tiles_1d(h, t, o));
@@ -107,6 +108,9 @@ pub fn run_rows_at(
         accs.iter_mut().for_each(|acc| acc.resize(rows * w * 3, 0.0));
         wsum.resize(rows * w, 0.0);
         for &x0 in &xs {
+            if crate::signal::interrupted() {
+                return false;
+            }
             let mut v = vec![0.0f32; 3 * tw * th];
             for c in 0..3 {
                 for y in 0..th {
@@ -151,6 +155,7 @@ pub fn run_rows_at(
         wsum.drain(..done * w);
         base += done;
     }
+    true
 }
 
 /// [`run_frame`] at each of `times`: one interleaved 8-bit RGB frame per time, in order.

@@ -124,7 +124,7 @@ impl Trainer {
                     dir.display().to_string()
                 )));
             }
-            let bytes = std::fs::read(&mpath).map_err(|e| Error::Io { path: mpath.clone(), cause: e })?;
+            let bytes = crate::io::paths::read_regular(&mpath, crate::io::paths::MAX_MODEL_BYTES, "safetensors model file")?;
             let ids: Vec<u64> =
                 read_meta(&bytes).ok().and_then(|m| m["param_ids"].as_str().and_then(|s| serde_json::from_str(s).ok())).ok_or_else(
                     || Error::File { path: mpath.to_path_buf(), why: "no param_ids in the metadata; cannot resume the optimizer".into() },

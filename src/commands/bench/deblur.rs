@@ -132,12 +132,23 @@ pub fn deblur(width: usize, height: usize, repeats: usize, burst: Option<usize>)
                 std::process::Command::new(python())
                     .arg(s)
                     .env("TORCH_THREADS", rayon::current_num_threads().to_string())
-                    .args(["burst", &arch.width().to_string(), &height.to_string(), &width.to_string(), &k.to_string(), &repeats.to_string()])
+                    .args([
+                        "burst",
+                        &arch.width().to_string(),
+                        &height.to_string(),
+                        &width.to_string(),
+                        &k.to_string(),
+                        &repeats.to_string(),
+                    ])
                     .output()
                     .ok()
                     .and_then(|o| serde_json::from_slice(&o.stdout).ok())
             });
-            eprintln!("bench: {name} as {} --burst {k}: {once:.2} s for {k} frames, {passes:.2} s for {k} passes ({:.2}x)", arch.name(), once / passes);
+            eprintln!(
+                "bench: {name} as {} --burst {k}: {once:.2} s for {k} frames, {passes:.2} s for {k} passes ({:.2}x)",
+                arch.name(),
+                once / passes
+            );
             BurstSpeed { k, burst_s_median: once, k_passes_s_median: passes, ratio: once / passes, torch }
         });
         out.push(DeblurSpeed {
