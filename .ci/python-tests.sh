@@ -5,7 +5,13 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 export VIRTUAL_ENV="$PWD/.venv" PATH="$PWD/.venv/bin:$PATH"
-[ -x target/release/pipeline ] || cargo build --release
-maturin develop --release --quiet 2>&1 | grep -v "^📦\\|^🔗\\|^🐍\\|^📡" >&2 || true
+# The CLI the tests compare with: PIPELINE_BIN, else the release build under CARGO_TARGET_DIR
+# (or target/).
+bin="${PIPELINE_BIN:-${CARGO_TARGET_DIR:-target}/release/pipeline}"
+[ -x "$bin" ] || cargo build --release
+bin="$(cd "$(dirname "$bin")" && pwd)/$(basename "$bin")"
+# Cargo's own progress lines show (the first build compiles PyO3 and reuses the rest).
+echo "python-tests: building the package into .venv with maturin (reuses cargo's build of the CLI)" >&2
+maturin develop --release 2>&1 | grep -v "^📦\\|^🔗\\|^🐍\\|^📡" >&2 || true
 python -c "import pipeline._native" || { echo "python-tests: maturin develop did not install the package" >&2; exit 1; }
-PIPELINE_BIN="$PWD/target/release/pipeline" python -m pytest -q python/tests "$@"
+PIPELINE_BIN="$bin" python -m pytest -q python/tests "$@"

@@ -185,16 +185,22 @@ def psf(camera="phase_coded", psi=None, window=None, config=None, airy_radius_px
 def deblur(image, model=None):
     """Runs a trained network (``pipeline deblur``'s fast CPU path) on one image.
 
-    image: (3, H, W) float32 in [0, 1], encoded sRGB; model: a model file or folder written by
+    image: (3, H, W) float in [0, 1], encoded sRGB (uint8 or uint16 codes are scaled to it); model: a model file or folder written by
     ``pipeline train`` or ``pipeline export`` (None: the default coded U-Net; the last model used
     stays loaded, so a file rewritten under the same path is not read again). Returns the
     network's (3, H, W) float32 output, not clamped or quantised.
     """
     import numpy as np
 
-    x = np.ascontiguousarray(image, dtype=np.float32)
-    if x.ndim != 3 or x.shape[0] != 3:
-        raise ValueError(f"image of shape {x.shape}: expected (3, H, W)")
+    a = np.asarray(image)
+    if a.ndim != 3 or a.shape[0] != 3:
+        raise ValueError(f"image of shape {a.shape}: expected (3, H, W)")
+    if a.dtype.kind in "ui":
+        # Integer pixels are the codes of their type (0 to 255 for uint8), not values in [0, 1].
+        a = a.astype(np.float32) / float(np.iinfo(a.dtype).max)
+    elif a.dtype.kind != "f":
+        raise ValueError(f"image of dtype {a.dtype}: expected float in [0, 1] or integer codes (uint8, uint16)")
+    x = np.ascontiguousarray(a, dtype=np.float32)
     return _native.deblur(x, None if model is None else os.fspath(model))
 
 

@@ -46,6 +46,10 @@ def test_deblur_matches_the_cli_and_exported_weights_keep_their_tensors(cli, tmp
     lq, gt, _ = next(iter(ds))
     out = pipeline.deblur(lq)
     assert out.shape == lq.shape and np.isfinite(out).all() and not np.array_equal(out, lq)
+    # uint8 codes are the same image (they gave values from -206 to 212 before); a string array is refused.
+    np.testing.assert_allclose(pipeline.deblur(np.rint(lq * 255).astype(np.uint8)), pipeline.deblur(np.rint(lq * 255) / 255), atol=1e-6)
+    with pytest.raises(ValueError, match="dtype"):
+        pipeline.deblur(np.zeros((3, 8, 8), dtype="U1"))
     # The CLI on the same 8-bit image (one tile) gives the same 8-bit output.
     Image.fromarray(np.rint(lq * 255).astype(np.uint8).transpose(1, 2, 0)).save(tmp_path / "in.png")
     cli("deblur", tmp_path / "in.png", "-o", tmp_path / "out.png", "--progress", "never")
