@@ -71,7 +71,7 @@ pub(super) fn own_folder(dir: &Path) -> Result<()> {
         return Ok(());
     }
     let mut shown: Vec<&str> = other.iter().take(3).map(String::as_str).collect();
-    let more = (other.len() > 3).then(|| format!(" and {} more", other.len() - 3)).unwrap_or_default();
+    let more = if other.len() > 3 { format!(" and {} more", other.len() - 3) } else { String::new() };
     shown.sort();
     Err(Error::Usage(format!(
         "{} (output.dir) holds files a training run does not write ({}{more}): a run needs a folder of its own, which it makes if missing; \
