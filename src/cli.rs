@@ -56,7 +56,7 @@ pub enum Command {
     /// input against the sharp middle frame.
     #[cfg(all(feature = "train", feature = "ffmpeg"))]
     #[command(
-        after_help = "Examples:\n  pipeline eval clip.mp4 -o eval-out/                         the shipped model, coded camera\n  pipeline eval clips/ --model models/unet16-conventional/model.safetensors --camera conventional -o eval-conv/\n  pipeline eval clip.mp4 --set eval.crop=256 --set 'eval.windows=[9]'\n\nWrites eval.json (every window, the means, the config), eval.md (Table 1 and per-sigma\ntables) and examples/*.png (blurred | deblurred | sharp). Keys: pipelines/eval.toml (embedded).\nA folder holding an earlier eval.json is not written into without --overwrite (exit 2)."
+        after_help = "Examples:\n  pipeline eval clip.mp4 -o eval-out/                         the shipped model, coded camera\n  pipeline eval clips/ --model models/unet32-conventional --camera conventional -o eval-conv/\n  pipeline eval clip.mp4 --set eval.crop=256 --set 'eval.windows=[9]'\n\nWrites eval.json (every window, the means, the config), eval.md (Table 1 and per-sigma\ntables) and examples/*.png (blurred | deblurred | sharp). Keys: pipelines/eval.toml (embedded).\nA folder holding an earlier eval.json is not written into without --overwrite (exit 2)."
     )]
     Eval(crate::commands::eval::EvalArgs),
     /// Draw one of the paper's comparison figures (conventional, fluttered shutter, parabolic

@@ -56,20 +56,20 @@ def test_deblur_matches_the_cli_and_exported_weights_keep_their_tensors(cli, tmp
     want = np.asarray(Image.open(tmp_path / "out.png")).transpose(2, 0, 1)
     np.testing.assert_array_equal(to_8bit(out), want)
     # Exported with PyTorch names: the shipped model's tensors, renamed.
-    cli("export", ROOT / "models" / "unet16-coded", "-o", tmp_path / "unet16.safetensors")
-    tensors, meta = pipeline.load_safetensors(tmp_path / "unet16.safetensors")
-    assert meta["format"] == "pt" and '"base":16' in meta["arch"]
-    assert tensors["inc.a.0.weight"].shape == (16, 3, 3, 3) and tensors["outc.bias"].shape == (3,)
-    # 926,099 learned values plus 1,984 BatchNorm running statistics, as models/README.md counts.
-    assert sum(v.size for k, v in tensors.items() if not k.endswith("num_batches_tracked")) == 928_083
-    assert sum(v.size for k, v in tensors.items() if "running" not in k and "num_batches" not in k) == 926_099
+    cli("export", ROOT / "models" / "unet32-coded", "-o", tmp_path / "unet32.safetensors")
+    tensors, meta = pipeline.load_safetensors(tmp_path / "unet32.safetensors")
+    assert meta["format"] == "pt" and '"base":32' in meta["arch"]
+    assert tensors["inc.a.0.weight"].shape == (32, 3, 3, 3) and tensors["outc.bias"].shape == (3,)
+    # 3,698,979 learned values plus 3,968 BatchNorm running statistics, as models/README.md counts.
+    assert sum(v.size for k, v in tensors.items() if not k.endswith("num_batches_tracked")) == 3_702_947
+    assert sum(v.size for k, v in tensors.items() if "running" not in k and "num_batches" not in k) == 3_698_979
 
 
 def test_exported_model_in_torch_matches_deblur(cli, tmp_path):
     torch = pytest.importorskip("torch")
     from pipeline.models import load
 
-    for name in ["unet16-coded", "shallow32-coded"]:
+    for name in ["unet32-coded", "shallow32-coded"]:
         path = tmp_path / f"{name}.safetensors"
         cli("export", ROOT / "models" / name, "-o", path)
         net = load(path).eval()
@@ -78,12 +78,12 @@ def test_exported_model_in_torch_matches_deblur(cli, tmp_path):
             y = net(torch.from_numpy(x)[None])[0].numpy()
         np.testing.assert_allclose(y, pipeline.deblur(x, model=ROOT / "models" / name), atol=1e-4, err_msg=name)
     # Sides that are not multiples of 16 (640x360): padded and cropped back like `pipeline deblur`.
-    net = load(tmp_path / "unet16-coded.safetensors").eval()
+    net = load(tmp_path / "unet32-coded.safetensors").eval()
     x = np.random.default_rng(1).random((3, 360, 640), dtype=np.float32)
     with torch.no_grad():
         y = net(torch.from_numpy(x)[None])[0].numpy()
     assert y.shape == (3, 360, 640)
-    np.testing.assert_allclose(y, pipeline.deblur(x, model=ROOT / "models" / "unet16-coded"), atol=1e-4)
+    np.testing.assert_allclose(y, pipeline.deblur(x, model=ROOT / "models" / "unet32-coded"), atol=1e-4)
 
 
 def test_type_stubs_name_every_export_with_the_real_parameters():

@@ -171,10 +171,10 @@ fn a_tiny_burst_model_trained_through_the_cli_deblurs_into_k_frames_in_order() {
         "--burst",
         "5",
         "--model",
-        concat!(env!("CARGO_MANIFEST_DIR"), "/models/unet16-coded"),
+        concat!(env!("CARGO_MANIFEST_DIR"), "/models/unet32-coded"),
     ]);
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
-    assert!(stderr(&o).contains("unet16-coded") && stderr(&o).contains("single-frame"), "{}", stderr(&o));
+    assert!(stderr(&o).contains("unet32-coded") && stderr(&o).contains("single-frame"), "{}", stderr(&o));
     let o = run(&["deblur", s(&img), "-o", s(&root.join("x.png")), "--burst", "5", "--model", s(&model)]);
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
 }

@@ -16,6 +16,7 @@ mod psf_cli;
 mod shared_output;
 #[cfg(feature = "train")]
 mod still;
+mod structure;
 #[cfg(feature = "train")]
 mod train;
 mod user_files;

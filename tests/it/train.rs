@@ -336,7 +336,7 @@ fn shipped_models_load_and_deblur_a_patch() {
         let x = probe(&Device::flex());
         let y = net.valid().forward(x.clone()).into_data().try_to_vec::<f32>().unwrap();
         assert!(y.iter().zip(x.into_data().try_to_vec::<f32>().unwrap()).any(|(a, b)| (a - b).abs() > 1e-3), "{m} is the identity");
-        // The folder itself names the model (`--model models/unet16-coded`).
+        // The folder itself names the model (`--model models/unet32-coded`).
         assert_eq!(load_model(&dir.join(&m), &Device::flex()).unwrap().1, arch, "{m} as a folder");
         n += 1;
     }
