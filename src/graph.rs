@@ -272,6 +272,9 @@ pub fn run(plan: &Plan, opts: &RunOptions) -> Result<Outcome> {
     }
     let settings = content_hash(&plan.resolved);
     let out_dir = plan.out_dir();
+    if std::fs::symlink_metadata(&out_dir).is_ok_and(|m| !m.is_dir()) && !out_dir.is_dir() {
+        return Err(Error::Usage(format!("{}: a file; the output is a folder (made if missing)", out_dir.display())));
+    }
     plan.sink().admits(&out_dir, (opts.task_index, opts.task_count))?;
     std::fs::create_dir_all(&out_dir).map_err(|e| Error::Io { path: out_dir.clone(), cause: e })?;
     let probe = out_dir.join(format!(".write-test.{}", std::process::id()));

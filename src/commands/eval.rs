@@ -286,6 +286,9 @@ fn side_by_side(path: &Path, w: usize, h: usize, panels: [&[u8]; 3], labels: [St
 /// Decodes the frames `first..=last` of a video (stopping early at its end), tagged linear.
 pub(crate) fn read_frames(path: &Path, first: u64, last: u64, curve: Curve) -> Result<Vec<Arc<Frame>>> {
     let mut reader = VideoReader::open(path).map_err(Error::video(path))?;
+    if reader.info.fps > 0.0 && reader.info.fps < crate::stage::decode::SLOW_FPS {
+        eprintln!("warning: {}", crate::stage::decode::slow_footage(path, reader.info.fps));
+    }
     let mut out = Vec::new();
     let mut i = 0u64;
     while i <= last {

@@ -567,6 +567,12 @@ pub fn command(a: FigureArgs) -> anyhow::Result<()> {
     if !(flutter_lambda > 0.0 && flutter_lambda <= 10.0) {
         return Err(crate::Error::Usage(format!("--flutter-lambda must be above 0 and at most 10 (got {flutter_lambda})")).into());
     }
+    // The default names the repository's models: from another folder, the build's own checkout.
+    let models = if models == Path::new("models") && !models.is_dir() {
+        PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/models"))
+    } else {
+        models
+    };
     let o = crate::commands::figure::FigureOptions {
         sigma,
         travel_px: travel,

@@ -1,5 +1,20 @@
 //! `decode`: video files through FFmpeg, frame by frame, as encoded frames.
 
+/// Footage slower than this is far from the paper's 240 fps: each sub-frame of a window then
+/// spans a long stretch of time, and the windows are exposures no camera makes.
+pub const SLOW_FPS: f64 = 120.0;
+
+/// The warning for footage at `fps` below [`SLOW_FPS`]: what the windows become, and the way on.
+pub fn slow_footage(path: &std::path::Path, fps: f64) -> String {
+    format!(
+        "{}: {fps:.1} fps; a window of 9 frames spans {:.0} ms (the paper's: 9 frames of 240 fps, 37 ms). High-frame-rate \
+         input is what the blur assumes; from slower footage, make it first (frame interpolation in linear light, e.g. \
+         ffmpeg -vf minterpolate=fps=240) and know that the motion between real frames is then invented",
+        path.display(),
+        9000.0 / fps
+    )
+}
+
 use super::input::{check_size, VIDEO_EXTS};
 use super::{BuildContext, Built, Counters, Emit, InputList, Needs, Source, StageConfig};
 use crate::checks::ConfigError;
@@ -68,6 +83,9 @@ impl Source for Decode {
                     return Ok(());
                 }
                 continue;
+            }
+            if reader.info.fps > 0.0 && reader.info.fps < SLOW_FPS {
+                eprintln!("warning: {}", slow_footage(path, reader.info.fps));
             }
             if !out.send(Item::Begin(input.clone(), reader.info.clone())) {
                 return Ok(());

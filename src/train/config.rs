@@ -48,7 +48,7 @@ pub struct OptimConfig {
     pub huber_delta: f64,
     /// Adam's epsilon. PyTorch's 1e-8; burn's default of 1e-5 is larger than most of these
     /// networks' gradients (RMS 1e-7 to 1e-6 with the mean-reduced loss), which then train at a
-    /// few percent of the rate (models/README.md).
+    /// few percent of the rate (docs/notebook/models.md).
     #[serde(default = "d_adam_eps")]
     pub adam_epsilon: f64,
     /// Start from the identity: the last layer zeroed, so the residual passes the input.
@@ -117,7 +117,7 @@ pub struct OutputConfig {
     /// At the end, `model.safetensors` is the mean of the weights of the last this many
     /// checkpoints (BatchNorm recalibrated on it), scored on the validation set in the report;
     /// 1 writes no such file. Averaging evens out the checkpoint-to-checkpoint swings of a run
-    /// (models/README.md). The fast engine only.
+    /// (docs/notebook/models.md). The fast engine only.
     #[serde(default = "d_one")]
     pub average_last: usize,
 }

@@ -108,6 +108,15 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
         }
     }
     let val: Vec<Pair> = val.finish().into_iter().map(|(i, raw)| raw.decode(&shards[i], size)).collect::<Result<_>>()?;
+    if val.is_empty() && cfg.data.val_fraction > 0.0 {
+        // The split is by input: with few inputs, a fraction can hold none of them.
+        eprintln!(
+            "warning: no input fell in the validation split (data.val_fraction {} of {} inputs): nothing is validated and \
+             the curves have no validation panel; raise data.val_fraction or give more inputs",
+            cfg.data.val_fraction,
+            t.train_inputs.len()
+        );
+    }
     t.val = val;
     if t.train_inputs.is_empty() {
         return Err(Error::Usage(format!(

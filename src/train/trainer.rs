@@ -85,6 +85,9 @@ impl Trainer {
         let read_history = |p: &Path| -> Option<History> { std::fs::read(p).ok().and_then(|b| serde_json::from_slice(&b).ok()) };
         if let (Some(init), false) = (&cfg.init, opts.resume) {
             let path = Path::new(init);
+            if std::fs::symlink_metadata(path).is_err() {
+                return Err(Error::Usage(format!("init: {init}: no such model file or folder")));
+            }
             let (mut net, mut arch) = load_model(path, &device).map_err(|e| Error::Context { what: "init".into(), source: Box::new(e) })?;
             // A burst U-Net starts from a single-frame U-Net of its width: the same weights, and
             // a time conditioning at zero (at every time, what the U-Net gave).

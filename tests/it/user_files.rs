@@ -147,6 +147,20 @@ fn train_refuses_a_folder_that_holds_other_output_and_an_empty_output_dir() {
     assert_eq!(o.status.code(), Some(2), "{e}");
     assert!(e.contains("output.dir"), "{e}");
     assert!(files(&cwd).is_empty(), "{:?}", files(&cwd));
+    // An init model that is not there is a usage error too.
+    let o = run(&[
+        "train",
+        "--config",
+        s(&cfg),
+        "--set",
+        "init=\"no/such/model\"",
+        "--set",
+        &format!("output.dir={:?}", s(&d.join("x"))),
+        "--progress",
+        "never",
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("no/such/model"), "{}", stderr(&o));
     // A killed run's temporary in its own folder goes at the next start, a user's file stays.
     let o = run(&["train", "--config", s(&cfg), "--progress", "never"]);
     assert!(o.status.success(), "{}", stderr(&o));
@@ -194,4 +208,75 @@ fn links_planted_in_the_output_folder_are_not_followed() {
     let o = generate(&out, &[s(&tiny_input())], &[]);
     assert!(!o.status.success() && stderr(&o).contains("reports"), "{}", stderr(&o));
     assert!(files(&outside).is_empty(), "written outside: {:?}", files(&outside));
+}
+
+#[cfg(feature = "train")]
+#[test]
+fn flags_obey_the_rules_of_their_keys_and_devices_are_not_read() {
+    let d = scratch("user_files_flags");
+    png(&d.join("a.png"), 5);
+    for (flag, v) in [("--tile", "0"), ("--tile", "15"), ("--tile", "100000"), ("--overlap", "10000")] {
+        let o = run(&["deblur", s(&d.join("a.png")), "-o", s(&d.join("o.png")), flag, v]);
+        assert_eq!(o.status.code(), Some(2), "{flag} {v}: {}", stderr(&o));
+        assert!(stderr(&o).contains(flag), "{}", stderr(&o));
+    }
+    assert!(!d.join("o.png").exists());
+    // A device is refused before a byte is read (it used to read /dev/zero without end).
+    let o = run(&["deblur", s(&d.join("a.png")), "-o", s(&d.join("o.png")), "--model", "/dev/zero"]);
+    assert!(!o.status.success() && stderr(&o).contains("not a regular file"), "{}", stderr(&o));
+    let o = run(&["train", "--config", "/dev/zero"]);
+    assert!(!o.status.success() && stderr(&o).contains("not a regular file"), "{}", stderr(&o));
+}
+
+#[test]
+fn a_fifo_an_empty_folder_and_a_file_as_the_output_are_named_not_waited_on() {
+    let d = scratch("user_files_fifo");
+    let clips = d.join("clips");
+    std::fs::create_dir_all(&clips).unwrap();
+    let fifo = clips.join("x.mp4");
+    let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+    // SAFETY: a valid NUL-terminated path.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o644) }, 0);
+    // The FIFO is not listed (it would block the decoder forever): the folder has nothing to read.
+    let o = generate(&d.join("o1"), &[s(&clips)], &[]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("no file to read"), "{}", stderr(&o));
+    let o = generate(&d.join("o2"), &[s(&fifo)], &[]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("not a regular file"), "{}", stderr(&o));
+    // An empty folder among the inputs is named, not skipped.
+    let empty = d.join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let o = generate(&d.join("o3"), &[FIXTURE, s(&empty)], &[]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    // A file as the output folder: a usage error (it was exit 1 "File exists").
+    let file = d.join("file");
+    std::fs::write(&file, b"x").unwrap();
+    let o = generate(&file, &[FIXTURE], &[]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert_eq!(std::fs::read(&file).unwrap(), b"x");
+}
+
+#[test]
+fn a_closed_stderr_or_stdout_ends_nothing_in_a_panic() {
+    use std::io::Read;
+    let d = scratch("user_files_pipes");
+    // stderr closed after its first byte: the run goes on and finishes (no panic, exit 0).
+    let mut child = bin()
+        .args(["generate", FIXTURE, "-o", s(&d.join("o")), "--progress", "lines", "--set", "sources.video.max_frames=27"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut first = [0u8; 1];
+    child.stderr.take().unwrap().read_exact(&mut first).unwrap();
+    let status = child.wait().unwrap();
+    assert_eq!(status.code(), Some(0));
+    assert!(d.join("o/manifest.json").exists());
+    // stdout closed after one line (`pipeline psf | head -1`): exit 0.
+    let mut child = bin().args(["psf"]).stdout(std::process::Stdio::piped()).stderr(std::process::Stdio::null()).spawn().unwrap();
+    let mut out = child.stdout.take().unwrap();
+    out.read_exact(&mut first).unwrap();
+    drop(out);
+    assert_eq!(child.wait().unwrap().code(), Some(0));
 }
