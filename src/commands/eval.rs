@@ -301,6 +301,37 @@ pub(crate) fn read_frames(path: &Path, first: u64, last: u64, curve: Curve) -> R
     Ok(out)
 }
 
+/// What every window of an evaluation shares: the camera's light throughput, the longest window
+/// and its half, the frames between centres, a blurrer per window length, the encoder and tiling.
+pub(crate) struct Setup {
+    pub throughput: f64,
+    pub maxn: usize,
+    pub half: u64,
+    pub spacing: u64,
+    pub blurrers: Vec<Blurrer>,
+    pub enc: Encoder,
+    pub tiling: Tiling,
+}
+
+impl Setup {
+    /// # Errors
+    /// A camera whose kernels cannot be made.
+    pub(crate) fn new(f: &EvalFile) -> Result<Setup> {
+        let e = &f.eval;
+        let camera = Arc::new(Camera::new(&f.optics, &f.camera));
+        let maxn = *e.windows.iter().max().expect("validated non-empty");
+        Ok(Setup {
+            throughput: camera.light_throughput(),
+            maxn,
+            half: (maxn / 2) as u64,
+            spacing: if e.spacing == 0 { maxn } else { e.spacing } as u64,
+            blurrers: e.windows.iter().map(|&n| Blurrer::new(camera.clone(), n, e.threads, e.max_error)).collect::<Result<Vec<_>>>()?,
+            enc: Encoder::new(e.curve),
+            tiling: Tiling { tile: e.tile, overlap: e.overlap },
+        })
+    }
+}
+
 /// Runs the evaluation and writes `eval.json`, `eval.md` and `examples/` under `out`.
 ///
 /// # Errors
@@ -318,14 +349,7 @@ pub fn run(
     let e = &f.eval;
     let paths = expand_paths(videos, crate::stage::input::VIDEO_EXTS)?;
     crate::io::make_dir_in(out, Path::new("examples"))?;
-    let camera = Arc::new(Camera::new(&f.optics, &f.camera));
-    let throughput = camera.light_throughput();
-    let maxn = *e.windows.iter().max().expect("validated non-empty");
-    let half = (maxn / 2) as u64;
-    let spacing = if e.spacing == 0 { maxn } else { e.spacing } as u64;
-    let mut blurrers = e.windows.iter().map(|&n| Blurrer::new(camera.clone(), n, e.threads, e.max_error)).collect::<Result<Vec<_>>>()?;
-    let enc = Encoder::new(e.curve);
-    let tiling = Tiling { tile: e.tile, overlap: e.overlap };
+    let Setup { throughput, maxn, half, spacing, mut blurrers, enc, tiling } = Setup::new(f)?;
     let total = (paths.len() * e.windows_per_video * e.windows.len() * e.sigmas.len()) as u64;
     let bar = crate::progress::Bar::new(progress, "eval", "windows", Some(total));
     let top_sigma = e.sigmas.iter().copied().fold(f64::NEG_INFINITY, f64::max);

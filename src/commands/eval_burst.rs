@@ -7,20 +7,16 @@
 //! are closer to the first and last sub-frames than to the last and first (50% is a coin).
 
 use super::eval::EvalFile;
-use crate::imaging::blur::Blurrer;
 use crate::imaging::{read_out, to_8bit};
 use crate::io::paths::expand_paths;
 use crate::io::write_atomic;
 use crate::metrics::quality;
 use crate::model::fast::FastNet;
-use crate::model::infer::{run_frame, run_frame_burst, Tiling};
-use crate::optics::transfer::Encoder;
-use crate::optics::Camera;
+use crate::model::infer::{run_frame, run_frame_burst};
 use crate::rng::{hash, hash_str};
 use crate::{Error, Result};
 use serde::Serialize;
 use std::path::Path;
-use std::sync::Arc;
 use std::time::Instant;
 
 /// The PSNR (RGB, dB) of one way of answering a window, at each sub-frame.
@@ -115,14 +111,7 @@ pub fn run(
     let e = &f.eval;
     let paths = expand_paths(videos, crate::stage::input::VIDEO_EXTS)?;
     std::fs::create_dir_all(out).map_err(|err| Error::Io { path: out.to_path_buf(), cause: err })?;
-    let camera = Arc::new(Camera::new(&f.optics, &f.camera));
-    let throughput = camera.light_throughput();
-    let maxn = *e.windows.iter().max().expect("validated non-empty");
-    let half = (maxn / 2) as u64;
-    let spacing = if e.spacing == 0 { maxn } else { e.spacing } as u64;
-    let mut blurrers = e.windows.iter().map(|&n| Blurrer::new(camera.clone(), n, e.threads, e.max_error)).collect::<Result<Vec<_>>>()?;
-    let enc = Encoder::new(e.curve);
-    let tiling = Tiling { tile: e.tile, overlap: e.overlap };
+    let super::eval::Setup { throughput, maxn, half, spacing, mut blurrers, enc, tiling } = super::eval::Setup::new(f)?;
     let total = (paths.len() * e.windows_per_video * e.windows.len() * e.sigmas.len()) as u64;
     let bar = crate::progress::Bar::new(progress, "eval --burst", "windows", Some(total));
     let mut records = Vec::new();

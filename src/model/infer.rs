@@ -11,6 +11,10 @@ use std::path::Path;
 /// (the best coded model on the held-out test clips, docs/eval.md; 7.4 MB, stored as F16).
 pub const DEFAULT_MODEL: &[u8] = include_bytes!("../../models/unet32-coded/model.safetensors");
 
+/// The model `deblur --burst` uses without `--model`: the shipped burst U-Net 32 of the coded
+/// camera (models/README.md; stored as F16).
+pub const DEFAULT_BURST_MODEL: &[u8] = include_bytes!("../../models/burst-unet32-coded/model.safetensors");
+
 /// Tiling of a frame: square tiles of `tile` pixels overlapping by `overlap`.
 #[derive(Debug, Clone, Copy)]
 pub struct Tiling {
@@ -189,12 +193,14 @@ pub fn load(model: Option<&Path>) -> Result<(FastNet, String)> {
 /// # Errors
 /// As [`load`]; a model that was not trained for bursts is refused by name (a usage error).
 pub fn load_burst(model: Option<&Path>) -> Result<(FastNet, String)> {
-    let Some(p) = model else {
-        return Err(crate::Error::Usage(
-            "--burst without --model: no burst model is shipped in this build; pass a burst model (`model.type = \"burst_unet\"` in training)".into(),
-        ));
+    let (net, name) = match model {
+        Some(p) => load(Some(p))?,
+        None => {
+            let (net, a) =
+                crate::model::checkpoint::load_model_bytes(DEFAULT_BURST_MODEL, "embedded models/burst-unet32-coded", &Device::flex())?;
+            (FastNet::from_net(&net), format!("models/burst-unet32-coded ({})", a.name()))
+        }
     };
-    let (net, name) = load(Some(p))?;
     if !net.is_burst() {
         return Err(crate::Error::Usage(format!(
             "{name}: a single-frame model; --burst needs a model trained for bursts (`model.type = \"burst_unet\"`, or models/burst-unet32-coded)"

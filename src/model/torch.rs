@@ -283,6 +283,7 @@ mod tests {
         use crate::model::Arch;
         for (m, arch) in [
             (crate::model::infer::DEFAULT_MODEL, Arch::Unet { base: 32 }),
+            (crate::model::infer::DEFAULT_BURST_MODEL, Arch::BurstUnet { base: 32 }),
             (include_bytes!("../../models/shallow32-coded/model.safetensors").as_slice(), Arch::Shallow { width: 32 }),
         ] {
             let (src, _) = read_safetensors(m, "m").unwrap();

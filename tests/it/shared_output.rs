@@ -230,7 +230,7 @@ fn a_folder_with_one_corrupt_image_deblurs_the_rest_and_exits_1() {
 #[test]
 fn a_model_with_nan_weights_is_refused() {
     let d = scratch("shared_nan_model");
-    let mut bytes = std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/models/unet32-coded/model.safetensors")).unwrap();
+    let mut bytes = std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/models/shallow32-coded/model.safetensors")).unwrap();
     // safetensors: 8-byte header length, JSON header, then the tensors' data; poison the first
     // value of a convolution's weights.
     let n = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
