@@ -173,33 +173,16 @@ fn remove_stale(targets: &[PathBuf]) {
     }
 }
 
-/// Deblurs a video into a video of the same size and frame rate.
+/// Deblurs a video into a video of the same size and frame rate; with `times`, a burst per frame:
+/// the output at each time, in order, so the video comes back at `times.len()` times the frame
+/// rate (a coded 26.7 fps clip of 240 fps footage deblurred into 9 frames each comes back at 240 fps).
 ///
 /// # Errors
 /// The input cannot be decoded, the output cannot be written (named); nothing is left at the
 /// output path on failure.
 #[cfg(feature = "ffmpeg")]
-pub fn video(
-    net: &FastNet,
-    model_name: &str,
-    input: &Path,
-    output: &Path,
-    tiling: Tiling,
-    lossless: bool,
-    progress: ProgressMode,
-) -> Result<DeblurReport> {
-    video_at(net, model_name, input, output, tiling, lossless, progress, None)
-}
-
-/// [`video`], or with `times` a burst per frame: the output at each time, in order, so the video
-/// comes back at `times.len()` times the frame rate (a coded 26.7 fps clip of 240 fps footage
-/// deblurred into 9 frames each comes back at 240 fps).
-///
-/// # Errors
-/// As [`video`].
-#[cfg(feature = "ffmpeg")]
 #[allow(clippy::too_many_arguments)]
-pub fn video_at(
+pub fn video(
     net: &FastNet,
     model_name: &str,
     input: &Path,
@@ -759,7 +742,7 @@ pub fn command(a: DeblurArgs) -> anyhow::Result<()> {
     }
     let r = match kind {
         #[cfg(feature = "ffmpeg")]
-        OutKind::Video => crate::commands::deblur::video_at(&net, &name, &input, &out, tiling, lossless, bar, times)?,
+        OutKind::Video => crate::commands::deblur::video(&net, &name, &input, &out, tiling, lossless, bar, times)?,
         #[cfg(not(feature = "ffmpeg"))]
         OutKind::Video => {
             let _ = lossless;

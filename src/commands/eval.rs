@@ -330,6 +330,23 @@ impl Setup {
             tiling: Tiling { tile: e.tile, overlap: e.overlap },
         })
     }
+
+    /// The frames of `path` every window of `e` reads (after `e.skip`), tagged linear.
+    ///
+    /// # Errors
+    /// The video cannot be read, or holds fewer frames than one window of the longest length.
+    pub(crate) fn frames(&self, path: &Path, e: &EvalConfig) -> Result<Vec<Arc<Frame>>> {
+        let first = e.skip as u64;
+        let last = first + 2 * self.half + self.spacing * (e.windows_per_video as u64 - 1);
+        let frames = read_frames(path, first, last, e.curve)?;
+        if (frames.len() as u64) < 2 * self.half + 1 {
+            return Err(Error::File {
+                path: path.to_path_buf(),
+                why: format!("{} frames after skipping {}, fewer than one window of {}", frames.len(), e.skip, self.maxn),
+            });
+        }
+        Ok(frames)
+    }
 }
 
 /// Runs the evaluation and writes `eval.json`, `eval.md` and `examples/` under `out`.
@@ -349,7 +366,8 @@ pub fn run(
     let e = &f.eval;
     let paths = expand_paths(videos, crate::stage::input::VIDEO_EXTS)?;
     crate::io::make_dir_in(out, Path::new("examples"))?;
-    let Setup { throughput, maxn, half, spacing, mut blurrers, enc, tiling } = Setup::new(f)?;
+    let mut s = Setup::new(f)?;
+    let (throughput, half, spacing, tiling) = (s.throughput, s.half, s.spacing, s.tiling);
     let total = (paths.len() * e.windows_per_video * e.windows.len() * e.sigmas.len()) as u64;
     let bar = crate::progress::Bar::new(progress, "eval", "windows", Some(total));
     let top_sigma = e.sigmas.iter().copied().fold(f64::NEG_INFINITY, f64::max);
@@ -366,14 +384,7 @@ pub fn run(
     let mut reg = [0; 4];
     for (vi, path) in paths.iter().enumerate() {
         let first = e.skip as u64;
-        let last = first + 2 * half + spacing * (e.windows_per_video as u64 - 1);
-        let frames = read_frames(path, first, last, e.curve)?;
-        if (frames.len() as u64) < 2 * half + 1 {
-            return Err(Error::File {
-                path: path.to_path_buf(),
-                why: format!("{} frames after skipping {}, fewer than one window of {maxn}", frames.len(), e.skip),
-            });
-        }
+        let frames = s.frames(path, e)?;
         let (w, h) = (frames[0].width, frames[0].height);
         reg = region(w, h, e.crop);
         let [rx, ry, rw, rh] = reg;
@@ -388,16 +399,16 @@ pub fn run(
             let sharp = to_8bit(&mid.linear_crop(rx, ry, rw, rh), rw, rh, e.curve);
             for (ni, &n) in e.windows.iter().enumerate() {
                 let start = (c - (n / 2) as u64) as usize;
-                let blur = blurrers[ni].blur_region(&frames[start..start + n], rx as isize, ry as isize, rw, rh);
+                let blur = s.blurrers[ni].blur_region(&frames[start..start + n], rx as isize, ry as isize, rw, rh);
                 let key = hash(&[f.seed, vi as u64, first + c, n as u64, hash_str("eval-noise")]);
                 let motion = log.as_ref().and_then(|l| l.kind(first + c)).map(str::to_string);
                 // The window's true kernel, where its motion is a known translation of the frame.
                 let truth = log
                     .as_ref()
                     .and_then(|l| l.shifts(first + start as u64, n, first + c))
-                    .map(|s| (crate::imaging::truth::window_kernel(&mut blurrers[ni], &s).0, mid.linear_crop(rx, ry, rw, rh)));
+                    .map(|sh| (crate::imaging::truth::window_kernel(&mut s.blurrers[ni], &sh).0, mid.linear_crop(rx, ry, rw, rh)));
                 for &sigma in &e.sigmas {
-                    let blurred = read_out(&blur, (rx, ry, rw, rh), &enc, sigma, throughput, key);
+                    let blurred = read_out(&blur, (rx, ry, rw, rh), &s.enc, sigma, throughput, key);
                     let deblurred = run_frame(net, &blurred, rw, rh, tiling);
                     let (qb, qd) = (quality(&blurred, &sharp, rw, rh), quality(&deblurred, &sharp, rw, rh));
                     let bound = truth.as_ref().map(|(k, lin)| {

@@ -111,20 +111,14 @@ pub fn run(
     let e = &f.eval;
     let paths = expand_paths(videos, crate::stage::input::VIDEO_EXTS)?;
     std::fs::create_dir_all(out).map_err(|err| Error::Io { path: out.to_path_buf(), cause: err })?;
-    let super::eval::Setup { throughput, maxn, half, spacing, mut blurrers, enc, tiling } = super::eval::Setup::new(f)?;
+    let mut s = super::eval::Setup::new(f)?;
+    let (throughput, half, spacing, tiling) = (s.throughput, s.half, s.spacing, s.tiling);
     let total = (paths.len() * e.windows_per_video * e.windows.len() * e.sigmas.len()) as u64;
     let bar = crate::progress::Bar::new(progress, "eval --burst", "windows", Some(total));
     let mut records = Vec::new();
     for (vi, path) in paths.iter().enumerate() {
         let first = e.skip as u64;
-        let last = first + 2 * half + spacing * (e.windows_per_video as u64 - 1);
-        let frames = super::eval::read_frames(path, first, last, e.curve)?;
-        if (frames.len() as u64) < 2 * half + 1 {
-            return Err(Error::File {
-                path: path.to_path_buf(),
-                why: format!("{} frames after skipping {}, fewer than one window of {maxn}", frames.len(), e.skip),
-            });
-        }
+        let frames = s.frames(path, e)?;
         let (w, h) = (frames[0].width, frames[0].height);
         let [rx, ry, rw, rh] = super::eval::region(w, h, e.crop);
         let log = crate::imaging::truth::MotionLog::read(path)?;
@@ -135,11 +129,11 @@ pub fn run(
                 let start = (c - (n / 2) as u64) as usize;
                 let window = &frames[start..start + n];
                 let sharp: Vec<Vec<u8>> = window.iter().map(|fr| to_8bit(&fr.linear_crop(rx, ry, rw, rh), rw, rh, e.curve)).collect();
-                let blur = blurrers[ni].blur_region(window, rx as isize, ry as isize, rw, rh);
+                let blur = s.blurrers[ni].blur_region(window, rx as isize, ry as isize, rw, rh);
                 let key = hash(&[f.seed, vi as u64, first + c, n as u64, hash_str("eval-noise")]);
                 let times: Vec<f32> = (0..n).map(|k| (k as f32 + 0.5) / n as f32).collect();
                 for &sigma in &e.sigmas {
-                    let blurred = read_out(&blur, (rx, ry, rw, rh), &enc, sigma, throughput, key);
+                    let blurred = read_out(&blur, (rx, ry, rw, rh), &s.enc, sigma, throughput, key);
                     let outs = run_frame_burst(net, &blurred, rw, rh, tiling, &times);
                     let psnr = |img: &[u8], k: usize| quality(img, &sharp[k], rw, rh).psnr_rgb.min(99.0);
                     let burst: Vec<f64> = (0..n).map(|k| psnr(&outs[k], k)).collect();

@@ -401,20 +401,20 @@ impl Film {
         }
         (scale, shift)
     }
-    /// `x` with sample i at time `ts[i]`.
-    pub(super) fn forward(&self, x: &T4, ts: &[f32]) -> T4 {
+    /// `x` with sample i at time `ts[i]`, in place.
+    pub(super) fn forward(&self, mut x: T4, ts: &[f32]) -> T4 {
         assert_eq!((ts.len(), x.c), (x.n, self.c), "one time per sample, the film's channels");
-        let mut y = x.clone();
-        let hw = x.hw();
+        let (c, hw) = (x.c, x.hw());
         for (i, &t) in ts.iter().enumerate() {
             let (scale, shift) = self.affine(t);
-            let s = &mut y.d[i * x.c * hw..(i + 1) * x.c * hw];
+            let s = &mut x.d[i * c * hw..(i + 1) * c * hw];
             s.par_chunks_mut(hw.max(1)).enumerate().for_each(|(c, plane)| plane.iter_mut().for_each(|v| *v = *v * scale[c] + shift[c]));
         }
-        y
+        x
     }
+    /// Training: keeps the input for the backward pass (the one copy training needs).
     pub(super) fn forward_train(&mut self, x: T4, ts: &[f32]) -> T4 {
-        let y = self.forward(&x, ts);
+        let y = self.forward(x.clone(), ts);
         self.cache = Some((x, ts.to_vec()));
         y
     }

@@ -51,7 +51,7 @@ impl FUnet {
     /// `x` (cropped back to its size).
     fn head(&self, c: T4, ts: &[f32], x: &T4) -> T4 {
         let c = match &self.film {
-            Some(f) => f.forward(&c, ts),
+            Some(f) => f.forward(c, ts),
             None => c,
         };
         let y = self.ups.last().expect("levels").conv.forward(&c);
