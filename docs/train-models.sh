@@ -21,6 +21,7 @@ STEPS=${STEPS:-25000}
 LR=${LR:-1e-3}
 WARMUP=${WARMUP:-200}
 PIPELINE=${PIPELINE:-target/release/pipeline}
+"$PIPELINE" train --help >/dev/null 2>&1 || { echo "$0: $PIPELINE cannot train: build it with cargo build --release --features train" >&2; exit 2; }
 shards=""
 for n in ${SETS:-7 9 11 13}; do shards="$shards${shards:+, }\"$DATA/shards/$CAM-n$n/*.tar\""; done
 if [ "$WIDTH" = shallow ]; then

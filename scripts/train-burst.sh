@@ -9,6 +9,8 @@
 #   bash scripts/train-burst.sh shards                 # both cameras' burst shards ($DATA/shards/burst-*)
 #   bash scripts/train-burst.sh phase_coded            # one run ($RUNS/burst-unet32-phase_coded)
 #   DATA=../data RUNS=../runs STEPS=20000 WIDTH=32 bash scripts/train-burst.sh conventional
+#   INIT=models/burst-unet32-coded STEPS=1500 LR=2.4e-4 WARMUP=20 bash scripts/train-burst.sh phase_coded
+#                                                      # continue from a shipped burst model
 #
 # Needs the photographs of docs/training-data.sh (STEP=photos bash docs/training-data.sh).
 set -euo pipefail
@@ -21,6 +23,7 @@ WIDTH=${WIDTH:-32}
 LR=${LR:-3e-4}
 WARMUP=${WARMUP:-200}
 PIPELINE=${PIPELINE:-target/release/pipeline}
+"$PIPELINE" train --help >/dev/null 2>&1 || { echo "$0: $PIPELINE cannot train: build it with cargo build --release --features train" >&2; exit 2; }
 
 # Burst shards: 4 windows of 9 per photograph, 2 patches each (6,300 samples per camera from the
 # 786 crops, each with 9 targets: about 1.1 GB); the two cameras side by side, one thread each.
@@ -39,8 +42,8 @@ if [ "$WHAT" = shards ]; then
 fi
 
 case "$WHAT" in
-  phase_coded) init=models/unet$WIDTH-coded ;;
-  conventional) init=models/unet$WIDTH-conventional ;;
+  phase_coded) init=${INIT:-models/unet$WIDTH-coded} ;;
+  conventional) init=${INIT:-models/unet$WIDTH-conventional} ;;
   *) echo "train-burst.sh: $WHAT: expected shards, phase_coded or conventional" >&2; exit 2 ;;
 esac
 dir="$RUNS/burst-unet$WIDTH-$WHAT"

@@ -45,23 +45,31 @@ pub enum Command {
         after_help = "Examples:\n  pipeline train --config pipelines/train.toml                       a run into output.dir\n  pipeline train --config pipelines/train.toml --resume              continue it where it stopped\n  pipeline train --config pipelines/train.toml --set 'init=\"runs/unet16\"' --set optim.steps=2000 \\\n    --set 'output.dir=\"runs/more\"'                                   train further, on a new schedule\n  pipeline train --config pipelines/train-shallow.toml --set 'output.dir=\"runs/shallow\"'\n  pipeline train --config pipelines/train.toml --set 'model.type=\"burst_unet\"' --set model.base=32 \\\n    --set 'init=\"models/unet32-coded\"' --set 'data.shards=[\"burst/*.tar\"]'   a burst model\n\nWrites checkpoints (model-STEP.safetensors + optimizer state), latest.json, report.json and\ncurves.png to output.dir, a folder of the run's own. --resume continues the same schedule\n(a changed optim.steps or lr is refused); init starts a new one from a trained model."
     )]
     Train(crate::commands::train::TrainArgs),
+    /// Train a model: not in this build (burn, the `train` feature); `cargo build --release
+    /// --features train` adds it.
+    #[cfg(not(feature = "train"))]
+    #[command(disable_help_flag = true)]
+    Train {
+        #[arg(trailing_var_arg = true, allow_hyphen_values = true, hide = true)]
+        args: Vec<String>,
+    },
     /// Deblur a video (same size and frame rate) or a folder of images (same names and formats).
-    #[cfg(feature = "train")]
+    #[cfg(feature = "infer")]
     #[command(
-        after_help = "Examples:\n  pipeline deblur coded.mp4 -o sharp.mp4                  the shipped default model\n  pipeline deblur coded.png -o burst/ --burst 9 --model runs/burst   nine sharp frames, in time order\n  pipeline deblur coded.mkv -o sharp.mkv --lossless       FFV1, lossless RGB\n  pipeline deblur frames/ -o sharp/ --model runs/unet16/model-0000300.safetensors\n\nThe output's kind follows its extension: a video from a video, an image or a folder (no\nextension) from one image, a folder from a folder of images; anything else is a usage error.\nParent folders are created. Writes OUTPUT and OUTPUT.report.json (a folder: OUTPUT/report.json)\nwith frames, size, frame rate and frames/s. Audio is not copied. An output an earlier run wrote\nis not replaced without --overwrite (exit 2); an interrupted folder run is finished by rerunning it.\nImages keep their format (PNG grey, alpha, 16 bits; OpenEXR float); memory is the tile's forward pass\nplus about 6 bytes per pixel; images over 16384x16384 pixels are refused by name (exit 1).\n\nWhich input: the default model undoes the blur of the phase-coded camera (the coloured streaks of\n`pipeline generate` or the prototype); on an ordinary photo or video it makes things worse. For\nordinary motion blur use a model trained on the conventional camera (--model\nmodels/unet32-conventional)."
+        after_help = "Examples:\n  pipeline deblur coded.mp4 -o sharp.mp4                  the shipped default model\n  pipeline deblur shaky.jpg -o sharp.jpg --camera conventional   ordinary motion blur\n  pipeline deblur coded.png -o burst/ --burst 9 --model runs/burst   nine sharp frames, in time order\n  pipeline deblur coded.mkv -o sharp.mkv --lossless       FFV1, lossless RGB\n  pipeline deblur frames/ -o sharp/ --model runs/unet16/model-0000300.safetensors\n\nThe output's kind follows its extension: a video from a video, an image or a folder (no\nextension) from one image, a folder from a folder of images; anything else is a usage error.\nParent folders are created. Writes OUTPUT and OUTPUT.report.json (a folder: OUTPUT/report.json)\nwith frames, size, frame rate and frames/s. Audio is not copied. An output an earlier run wrote\nis not replaced without --overwrite (exit 2); an interrupted folder run is finished by rerunning it.\nImages keep their format (PNG grey, alpha, 16 bits; OpenEXR float); memory is the tile's forward pass\nplus about 6 bytes per pixel; images over 16384x16384 pixels are refused by name (exit 1).\n\nWhich input: the default model undoes the blur of the phase-coded camera (the coloured streaks of\n`pipeline generate` or the prototype); on an ordinary photo or video it makes things worse. For\nordinary motion blur use the model trained on the conventional camera: --camera conventional."
     )]
     Deblur(crate::commands::deblur::DeblurArgs),
     /// Score a model the way the paper's Table 1 does: windows of N = 7..13 frames from your
     /// videos, noise sigma 0..3, PSNR/SSIM (RGB and Y) of the deblurred frame and of the blurred
     /// input against the sharp middle frame.
-    #[cfg(all(feature = "train", feature = "ffmpeg"))]
+    #[cfg(all(feature = "infer", feature = "ffmpeg"))]
     #[command(
         after_help = "Examples:\n  pipeline eval clip.mp4 -o eval-out/                         the shipped model, coded camera\n  pipeline eval clips/ --model models/unet32-conventional --camera conventional -o eval-conv/\n  pipeline eval clip.mp4 --set eval.crop=256 --set 'eval.windows=[9]'\n\nWrites eval.json (every window, the means, the config), eval.md (Table 1 and per-sigma\ntables) and examples/*.png (blurred | deblurred | sharp). Keys: pipelines/eval.toml (embedded).\nA folder holding an earlier eval.json is not written into without --overwrite (exit 2)."
     )]
     Eval(crate::commands::eval::EvalArgs),
     /// Draw one of the paper's comparison figures (conventional, fluttered shutter, parabolic
     /// motion and the coded camera) as a labelled PNG.
-    #[cfg(feature = "train")]
+    #[cfg(feature = "infer")]
     #[command(
         after_help = "Figures:\n  psf-strip   Fig. 2: a moving point through a conventional camera, a focus sweep without the\n              mask, and the coded camera (blue -> green -> red along the path)\n  dots        Fig. 3: moving dots through all four cameras, with noise\n  spectrum    Fig. 4: (x, t) slice of a moving point's PSF, its 2-D Fourier amplitude and phase\n  spoke       Fig. 5: rotating spoke target, captures and reconstructions (flutter least squares,\n              parabolic Lucy-Richardson, the shipped U-Nets); FILE.md and FILE.json with PSNR/SSIM\n\nExamples:\n  pipeline figure psf-strip -o fig2.png\n  pipeline figure spoke -o fig5.png --sigma 3 --travel 16"
     )]
@@ -73,7 +81,7 @@ pub enum Command {
     Validate(crate::commands::generate::ValidateArgs),
     /// Write a trained model with PyTorch state_dict names (python/pipeline/models.py's UNet and
     /// Shallow), for fine-tuning or deployment in PyTorch.
-    #[cfg(feature = "train")]
+    #[cfg(feature = "infer")]
     #[command(
         after_help = "Examples:\n  pipeline export models/unet32-coded -o unet32-coded.pt.safetensors\n  pipeline export trained-in-torch.safetensors --format burn --half -o models/mine/model.safetensors\n\nIn Python: model = UNet(32); model.load_state_dict(safetensors.torch.load_file(\"unet32-coded.pt.safetensors\"))"
     )]
@@ -118,13 +126,20 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Validate(a) => commands::generate::command(a),
         #[cfg(feature = "train")]
         Command::Train(a) => commands::train::command(a),
-        #[cfg(feature = "train")]
+        #[cfg(not(feature = "train"))]
+        Command::Train { .. } => Err(crate::Error::Usage(
+            "this pipeline was built without training (burn, about two thirds of the dependencies, is the `train` feature): \
+             cargo build --release --features train, then target/release/pipeline train ..."
+                .into(),
+        )
+        .into()),
+        #[cfg(feature = "infer")]
         Command::Deblur(a) => commands::deblur::command(a),
-        #[cfg(all(feature = "train", feature = "ffmpeg"))]
+        #[cfg(all(feature = "infer", feature = "ffmpeg"))]
         Command::Eval(a) => commands::eval::command(a),
-        #[cfg(feature = "train")]
+        #[cfg(feature = "infer")]
         Command::Figure(a) => commands::figure::command(a),
-        #[cfg(feature = "train")]
+        #[cfg(feature = "infer")]
         Command::Export(a) => commands::export::command(a),
         Command::Bench(c) => commands::bench::command(c),
     }

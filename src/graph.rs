@@ -649,8 +649,9 @@ impl Progress {
         let c = &self.counters;
         let secs = self.start.elapsed().as_secs_f64().max(1e-9);
         let f = Counters::get(&c.frames);
+        let status = c.status.lock().map(|s| if s.is_empty() { String::new() } else { format!("; {s}") }).unwrap_or_default();
         self.bar.set_message(format!(
-            "{f} frames ({:.1}/s), {} windows, {} samples, {} failed",
+            "{f} frames ({:.1}/s), {} windows, {} samples, {} failed{status}",
             f as f64 / secs,
             Counters::get(&c.windows),
             Counters::get(&c.samples),

@@ -7,7 +7,8 @@
 //! - [`io`]: atomic writes, `.npy`, OpenEXR, PNG.
 //! - [`stage`]: one file per pipeline stage (config, checks, runtime); [`config`] the topology,
 //!   [`graph`] the threads and channels; [`imaging`] what a camera does to a window.
-//! - [`model`], [`train`] (feature `train`): the networks, their fast CPU path, training.
+//! - [`model`] (feature `infer`, default): the networks, their fast CPU path, model files;
+//!   [`train`] (feature `train`, with burn): training.
 //! - [`commands`]: one file per command (psf, generate/run/validate, train, deblur, eval,
 //!   figure, bench); [`cli`] parses and dispatches.
 //! - [`scene`], [`recon`]: synthetic scenes and the classical reconstructions of the other cameras.
@@ -49,7 +50,7 @@ pub mod graph;
 pub mod imaging;
 pub mod io;
 pub mod metrics;
-#[cfg(feature = "train")]
+#[cfg(feature = "infer")]
 pub mod model;
 pub mod optics;
 pub mod plot;

@@ -8,6 +8,7 @@ use super::ConfigArgs;
 use crate::io::{png as png_io, write_atomic};
 use crate::model::fast::FastNet;
 use crate::model::infer::{run_rows_at, Tiling};
+use crate::optics::CameraKind;
 use crate::progress::{Bar, ProgressMode};
 use crate::{Error, Result};
 use clap::Args;
@@ -106,6 +107,10 @@ pub struct DeblurReport {
     /// capture, in order; absent for one output per capture.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub burst_times: Option<Vec<f32>>,
+    /// A video with a variable frame rate: the most, in milliseconds, that a frame was moved
+    /// from its own time to its place at the constant output rate (absent: constant rate).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub retimed_ms: Option<f64>,
 }
 
 #[derive(Debug, serde::Serialize)]
@@ -152,6 +157,7 @@ impl DeblurReport {
             changed: Vec::new(),
             interrupted: false,
             burst_times: None,
+            retimed_ms: None,
         }
     }
 }
@@ -236,7 +242,7 @@ pub fn video(
             return Err(e);
         }
     };
-    Ok(DeblurReport::new(
+    let mut r = DeblurReport::new(
         input,
         output,
         model_name,
@@ -246,7 +252,18 @@ pub fn video(
         tiling,
         t0,
         "not copied: deblur writes the video stream only",
-    ))
+    );
+    // A millisecond is beyond any constant-rate container's rounding of its timestamps.
+    if reader.retimed_s > 1e-3 {
+        let ms = (reader.retimed_s * 1e4).round() / 10.0;
+        eprintln!(
+            "note: {} has a variable frame rate: the output runs at a constant {:.3} fps, frames moved by up to {ms} ms from their own times",
+            input.display(),
+            reader.info.fps * k as f64
+        );
+        r.retimed_ms = Some(ms);
+    }
+    Ok(r)
 }
 
 /// The encoded value in [0, 1] that the network sees for channel `c` (R, G, B) of pixel `i` of
@@ -386,6 +403,9 @@ fn deblur_image_at(
     let mut canvases: Vec<Canvas> = dsts.iter().map(|_| blank()).collect();
     let mut lost = Vec::new();
     let kept = matches!(canvases[0], Canvas::Png(_));
+    if let (Picture::Png(s), true) = (&pic, kept) {
+        lost.extend(s.expanded.clone());
+    }
     if alpha && !kept {
         lost.push("alpha dropped".to_string());
     }
@@ -661,9 +681,14 @@ pub struct DeblurArgs {
     /// Output video (.mp4, .mkv, .mov...), image (for one image: its format from the extension) or folder.
     #[arg(short, long)]
     pub out: PathBuf,
-    /// A model written by `pipeline train`; default: the shipped U-Net 32 (coded camera).
+    /// A model written by `pipeline train`; default: the shipped U-Net 32 of `--camera`.
     #[arg(long)]
     pub model: Option<PathBuf>,
+    /// Which camera made the input, when no --model is given: `phase_coded` (default; the
+    /// coloured streaks of the coded camera) or `conventional` (ordinary motion blur: the shipped
+    /// U-Net 32 trained on the conventional camera).
+    #[arg(long, conflicts_with = "model", value_parser = ["phase_coded", "conventional"])]
+    pub camera: Option<String>,
     /// Tile size in pixels (frames are processed in tiles with blended seams); default 1280 (a 720p frame in one pass; smaller tiles use less memory).
     #[arg(long)]
     pub tile: Option<usize>,
@@ -691,7 +716,8 @@ pub struct DeblurArgs {
 /// # Errors
 /// Whatever the command reports (exit codes in `main.rs`).
 pub fn command(a: DeblurArgs) -> anyhow::Result<()> {
-    let DeblurArgs { input, out, model, tile, overlap, lossless, burst, overwrite, file } = a;
+    let DeblurArgs { input, out, model, camera, tile, overlap, lossless, burst, overwrite, file } = a;
+    let camera = camera.map(|c| if c == "conventional" { CameraKind::Conventional } else { CameraKind::PhaseCoded });
     if let Some(k) = burst.filter(|k| !(2..=64).contains(k)) {
         return Err(Error::Usage(format!("--burst {k}: the number of frames per capture must be 2 to 64")).into());
     }
@@ -725,11 +751,9 @@ pub fn command(a: DeblurArgs) -> anyhow::Result<()> {
         d.check("")?;
     }
     let lossless = lossless || d.lossless;
-    let model = model.or_else(|| (!d.model.is_empty()).then(|| PathBuf::from(&d.model)));
-    let (net, name) = match burst {
-        Some(_) => crate::model::infer::load_burst(model.as_deref())?,
-        None => crate::model::infer::load(model.as_deref())?,
-    };
+    // --camera names a shipped model: it stands in for the settings file's `model` too.
+    let model = model.or_else(|| (camera.is_none() && !d.model.is_empty()).then(|| PathBuf::from(&d.model)));
+    let (net, name) = crate::model::infer::load_for(model.as_deref(), camera, burst.is_some())?;
     let times: Option<Vec<f32>> = burst.map(|k| (0..k).map(|i| (i as f32 + 0.5) / k as f32).collect());
     let times = times.as_deref();
     let tiling = crate::model::infer::Tiling { tile: d.tile, overlap: d.overlap };

@@ -618,7 +618,8 @@ pub struct EvalArgs {
     /// Output folder.
     #[arg(short, long, default_value = "eval-out")]
     pub out: std::path::PathBuf,
-    /// A model written by `pipeline train`; default: the shipped U-Net 32 (coded camera).
+    /// A model written by `pipeline train`; default: the camera's shipped U-Net 32 (coded or
+    /// conventional; with --burst, the camera's burst U-Net).
     #[arg(long)]
     pub model: Option<std::path::PathBuf>,
     /// The camera that blurs the test windows (overrides camera.type); use the one the model
@@ -638,7 +639,7 @@ pub struct EvalArgs {
     #[arg(long)]
     pub burst: bool,
     /// With --burst: the single-frame model repeated for every sub-frame, as the baseline
-    /// (default: the shipped coded U-Net 32 for the coded camera, none for the others).
+    /// (default: the camera's shipped U-Net 32, coded or conventional; none for the others).
     #[arg(long, requires = "burst")]
     pub baseline: Option<std::path::PathBuf>,
     #[command(flatten)]
@@ -661,10 +662,13 @@ fn command_burst(
     if let Some(k) = camera {
         f.camera.kind = k;
     }
-    let (net, name) = crate::model::infer::load_burst(model.as_deref())?;
+    let (net, name) = crate::model::infer::load_for(model.as_deref(), Some(f.camera.kind), true)?;
+    // The baseline: the camera's shipped single-frame model (none for the other cameras).
     let single = match (&baseline, f.camera.kind) {
         (Some(p), _) => Some(crate::model::infer::load(Some(p))?),
-        (None, crate::optics::CameraKind::PhaseCoded) => Some(crate::model::infer::load(None)?),
+        (None, k @ (crate::optics::CameraKind::PhaseCoded | crate::optics::CameraKind::Conventional)) => {
+            Some(crate::model::infer::load_for(None, Some(k), false)?)
+        }
         (None, _) => None,
     };
     let r = crate::commands::eval_burst::run(&f, &net, &name, single.as_ref().map(|(n, s)| (n, s.as_str())), &videos, &out, file.progress)?;
@@ -690,7 +694,7 @@ pub fn command(a: EvalArgs) -> anyhow::Result<()> {
     if let Some(k) = camera {
         f.camera.kind = k;
     }
-    let (net, name) = crate::model::infer::load(model.as_deref())?;
+    let (net, name) = crate::model::infer::load_for(model.as_deref(), Some(f.camera.kind), false)?;
     let bar = file.progress;
     let mut r = crate::commands::eval::run(&f, &net, &name, &videos, &out, bar)?;
     if let Some(v) = versus {

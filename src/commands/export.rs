@@ -37,7 +37,7 @@ pub enum ExportFormat {
 /// # Errors
 /// The model cannot be read or is not ours; the output cannot be written.
 pub fn command(a: ExportArgs) -> anyhow::Result<()> {
-    let path = if a.model.is_dir() { crate::model::checkpoint::model_in(&a.model)? } else { a.model.clone() };
+    let path = if a.model.is_dir() { crate::model::weights::model_in(&a.model)? } else { a.model.clone() };
     let name = path.display().to_string();
     crate::io::paths::refuse_replacing_inputs(std::slice::from_ref(&a.out), &[path.clone(), a.model.clone()])?;
     crate::io::paths::refuse_replacing(&a.out, std::slice::from_ref(&a.out), a.overwrite)?;
@@ -45,7 +45,7 @@ pub fn command(a: ExportArgs) -> anyhow::Result<()> {
     // F32 with pipeline's names, whatever the file holds; refuse what `deblur` would refuse
     // (wrong architecture, non-finite weights).
     let native = canonical(&bytes, &name)?;
-    crate::model::checkpoint::load_model_bytes(&native, &name, &burn::tensor::Device::flex())?;
+    crate::model::weights::Weights::from_bytes(&native, &name)?;
     let (count, out, what) = match a.format {
         ExportFormat::Torch => {
             let (names, out) = to_torch(&native, &name)?;

@@ -338,13 +338,12 @@ fn spoke(o: &FigureOptions, out: &Path) -> Result<Vec<Score>> {
     let (w, h) = (s.width, s.height);
     let frames = s.render();
     let sharp = encode(&s.render_at(0.0), w, h);
-    let device = burn::tensor::Device::flex();
     let model = |name: &str| -> Result<crate::model::fast::FastNet> {
         let p = o.models.join(name).join("model.safetensors");
         if !p.exists() {
             return Err(Error::Usage(format!("{}: no such model (run from the repository or pass --models DIR)", p.display())));
         }
-        Ok(crate::model::fast::FastNet::from_net(&crate::train::load_model(&p, &device)?.0))
+        Ok(crate::model::infer::load(Some(&p))?.0)
     };
     let tiling = crate::model::infer::Tiling::default();
     let mut panels = vec![Panel::from_rgb8("(A) ROTATING TARGET, SHARP", w, h, &sharp)];

@@ -2,17 +2,17 @@
 //! runs and the summary it prints. `cli.rs` only parses and dispatches.
 
 pub mod bench;
-#[cfg(feature = "train")]
+#[cfg(feature = "infer")]
 pub mod deblur;
-#[cfg(all(feature = "train", feature = "ffmpeg"))]
+#[cfg(all(feature = "infer", feature = "ffmpeg"))]
 pub mod eval;
-#[cfg(all(feature = "train", feature = "ffmpeg"))]
+#[cfg(all(feature = "infer", feature = "ffmpeg"))]
 pub mod eval_burst;
-#[cfg(feature = "train")]
+#[cfg(feature = "infer")]
 pub mod export;
-#[cfg(feature = "train")]
+#[cfg(feature = "infer")]
 pub mod figure;
-#[cfg(all(feature = "train", feature = "ffmpeg"))]
+#[cfg(all(feature = "infer", feature = "ffmpeg"))]
 pub mod figure_burst;
 pub mod generate;
 pub mod psf;

@@ -59,6 +59,9 @@ pub struct Samples {
     pub channels: usize,
     pub sixteen: bool,
     pub data: Vec<u8>,
+    /// What the file held that these samples do not: a palette, or samples of 1, 2 or 4 bits
+    /// (expanded to 8), in words for a report.
+    pub expanded: Option<String>,
 }
 
 impl Samples {
@@ -89,7 +92,15 @@ pub fn read_samples(bytes: &[u8]) -> Result<Samples, String> {
     let (width, height, color, data) = decode_as(bytes, png::Transformations::EXPAND)?;
     let channels = color.samples();
     let sixteen = data.len() == width * height * channels * 2;
-    Ok(Samples { width, height, channels, sixteen, data })
+    let expanded = {
+        let r = png::Decoder::new(std::io::Cursor::new(bytes)).read_info().map_err(|e| e.to_string())?;
+        match (r.info().color_type, r.info().bit_depth as u8) {
+            (png::ColorType::Indexed, _) => Some("palette written as RGB".to_string()),
+            (_, d) if d < 8 => Some(format!("{d}-bit samples written as 8 bits")),
+            _ => None,
+        }
+    };
+    Ok(Samples { width, height, channels, sixteen, data, expanded })
 }
 
 /// Writes [`Samples`] as a PNG of their layout and depth.

@@ -36,6 +36,13 @@ pub struct VideoReader {
     pub alpha: bool,
     /// The source is grey (frames come as RGB with three equal channels).
     pub grey: bool,
+    /// The largest distance, in seconds, between a decoded frame's timestamp and its place on
+    /// the constant-rate grid of [`VideoReader::rate`] (from the first frame's time): what a
+    /// variable-frame-rate source is re-timed by when read as frames at one rate.
+    pub retimed_s: f64,
+    /// The stream's time base in seconds, and the first frame's time.
+    time_base: f64,
+    first_time: Option<f64>,
     /// Convert every frame with swscale, also the 8-bit Y'CbCr formats [`crate::io::yuv`]
     /// converts by default (the reference the tests compare that path with).
     pub force_swscale: bool,
@@ -177,6 +184,7 @@ impl VideoReader {
         let st = ictx.streams().best(ff::media::Type::Video).ok_or("no video stream")?;
         let stream = st.index();
         let rate = st.avg_frame_rate();
+        let time_base = f64::from(st.time_base());
         let fps = if rate.denominator() != 0 { rate.numerator() as f64 / rate.denominator() as f64 } else { 0.0 };
         let announced = st.frames();
         let mut ctx = ff::codec::context::Context::from_parameters(st.parameters())?;
@@ -215,7 +223,19 @@ impl VideoReader {
             grey,
             force_swscale: false,
             regions: None,
+            retimed_s: 0.0,
+            time_base,
+            first_time: None,
         })
+    }
+
+    /// Updates [`VideoReader::retimed_s`] with the frame just decoded.
+    fn track_time(&mut self) {
+        let (Some(ts), true) = (self.decoded.timestamp(), self.info.fps > 0.0) else { return };
+        let t = ts as f64 * self.time_base;
+        let first = *self.first_time.get_or_insert(t);
+        let on_grid = first + (self.frames_decoded - 1) as f64 / self.info.fps;
+        self.retimed_s = self.retimed_s.max((t - on_grid).abs());
     }
 
     fn convert(&mut self) -> Result<Frame, VideoError> {
@@ -318,6 +338,7 @@ impl VideoReader {
                         )
                         .into());
                     }
+                    self.track_time();
                     return self.convert().map(Some);
                 }
                 Err(ff::Error::Eof) => {

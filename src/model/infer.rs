@@ -3,8 +3,8 @@
 //! benchmarks.
 
 use crate::model::fast::{FastNet, T4};
+use crate::optics::CameraKind;
 use crate::Result;
-use burn::tensor::Device;
 use std::path::Path;
 
 /// The model `deblur` uses without `--model`: the shipped U-Net 32 trained on the coded camera
@@ -14,6 +14,10 @@ pub const DEFAULT_MODEL: &[u8] = include_bytes!("../../models/unet32-coded/model
 /// The model `deblur --burst` uses without `--model`: the shipped burst U-Net 32 of the coded
 /// camera (models/README.md; stored as F16).
 pub const DEFAULT_BURST_MODEL: &[u8] = include_bytes!("../../models/burst-unet32-coded/model.safetensors");
+
+/// The model `deblur --camera conventional` uses: the shipped U-Net 32 trained on the
+/// conventional camera (for ordinary motion blur), embedded.
+pub const CONVENTIONAL_MODEL: &[u8] = include_bytes!("../../models/unet32-conventional/model.safetensors");
 
 /// Tiling of a frame: square tiles of `tile` pixels overlapping by `overlap`.
 #[derive(Debug, Clone, Copy)]
@@ -177,15 +181,22 @@ pub fn run_frame_burst(net: &FastNet, rgb: &[u8], w: usize, h: usize, tiling: Ti
 /// Loads `--model`, or the embedded default.
 ///
 /// # Errors
-/// As [`crate::model::checkpoint::load_model`].
+/// As [`Weights::read`](crate::model::weights::Weights::read).
 pub fn load(model: Option<&Path>) -> Result<(FastNet, String)> {
-    let device = Device::flex();
-    let (net, name) = match model {
-        Some(p) => crate::model::checkpoint::load_model(p, &device).map(|(n, a)| (n, format!("{} ({})", p.display(), a.name())))?,
-        None => crate::model::checkpoint::load_model_bytes(DEFAULT_MODEL, "embedded models/unet32-coded", &device)
-            .map(|(n, a)| (n, format!("models/unet32-coded ({})", a.name())))?,
+    use crate::model::weights::Weights;
+    let (w, name) = match model {
+        Some(p) => {
+            let w = Weights::read(p)?;
+            let name = format!("{} ({})", p.display(), w.arch.name());
+            (w, name)
+        }
+        None => {
+            let w = Weights::from_bytes(DEFAULT_MODEL, "embedded models/unet32-coded")?;
+            let name = format!("models/unet32-coded ({})", w.arch.name());
+            (w, name)
+        }
     };
-    Ok((FastNet::from_net(&net), name))
+    Ok((FastNet::from_weights(w), name))
 }
 
 /// Loads a burst model for `deblur --burst`: `--model`, or the shipped coded burst U-Net.
@@ -193,15 +204,47 @@ pub fn load(model: Option<&Path>) -> Result<(FastNet, String)> {
 /// # Errors
 /// As [`load`]; a model that was not trained for bursts is refused by name (a usage error).
 pub fn load_burst(model: Option<&Path>) -> Result<(FastNet, String)> {
-    let (net, name) = match model {
-        Some(p) => load(Some(p))?,
-        None => {
-            let (net, a) =
-                crate::model::checkpoint::load_model_bytes(DEFAULT_BURST_MODEL, "embedded models/burst-unet32-coded", &Device::flex())?;
-            (FastNet::from_net(&net), format!("models/burst-unet32-coded ({})", a.name()))
+    load_for(model, None, true)
+}
+
+/// The model for a camera's captures: `model` when given, else the shipped one of `camera`
+/// (default: the coded camera): the coded U-Nets and the conventional single-frame U-Net are
+/// embedded; the conventional burst U-Net is read from the repository's `models/`. With
+/// `burst`, a model that was not trained for bursts is refused by name.
+///
+/// # Errors
+/// As [`load`]; no shipped model for that camera (the flutter, parabolic and focus-sweep
+/// cameras), or a single-frame model for a burst (usage errors).
+pub fn load_for(model: Option<&Path>, camera: Option<CameraKind>, burst: bool) -> Result<(FastNet, String)> {
+    use crate::model::weights::Weights;
+    let embedded = |bytes: &[u8], name: &str| -> Result<(FastNet, String)> {
+        let w = Weights::from_bytes(bytes, &format!("embedded {name}"))?;
+        let label = format!("{name} ({})", w.arch.name());
+        Ok((FastNet::from_weights(w), label))
+    };
+    let (net, name) = match (model, camera.unwrap_or(CameraKind::PhaseCoded), burst) {
+        (Some(p), _, _) => load(Some(p))?,
+        (None, CameraKind::PhaseCoded, false) => embedded(DEFAULT_MODEL, "models/unet32-coded")?,
+        (None, CameraKind::PhaseCoded, true) => embedded(DEFAULT_BURST_MODEL, "models/burst-unet32-coded")?,
+        (None, CameraKind::Conventional, false) => embedded(CONVENTIONAL_MODEL, "models/unet32-conventional")?,
+        (None, CameraKind::Conventional, true) => {
+            let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("models/burst-unet32-conventional");
+            if !p.join("model.safetensors").is_file() {
+                return Err(crate::Error::Usage(format!(
+                    "{}: not found (the conventional burst model is not embedded; pass --model)",
+                    p.display()
+                )));
+            }
+            load(Some(&p))?
+        }
+        (None, other, _) => {
+            return Err(crate::Error::Usage(format!(
+                "no model ships for the {} camera (only phase_coded and conventional); pass --model",
+                other.name()
+            )))
         }
     };
-    if !net.is_burst() {
+    if burst && !net.is_burst() {
         return Err(crate::Error::Usage(format!(
             "{name}: a single-frame model; --burst needs a model trained for bursts (`model.type = \"burst_unet\"`, or models/burst-unet32-coded)"
         )));

@@ -193,17 +193,11 @@ pub fn to_torch(bytes: &[u8], name: &str) -> Result<(Vec<(String, Vec<usize>, St
     Ok((out.into_iter().map(|e| (e.name, e.shape, e.dtype)).collect(), written))
 }
 
-/// PyTorch name -> burn name for every parameter of a fresh network of `arch`: the inverse of
-/// [`torch_name`], derived from burn's own names so the two cannot drift apart.
+/// PyTorch name -> burn name for every parameter of a network of `arch`: the inverse of
+/// [`torch_name`] over [`param_shapes`](crate::model::weights::param_shapes) (a test checks those
+/// against burn's own names, so the two cannot drift apart).
 fn burn_names(arch: crate::model::Arch) -> Result<std::collections::HashMap<String, String>> {
-    use burn::store::{ModuleSnapshot, SafetensorsStore};
-    let net = crate::model::Net::new(arch, &burn::tensor::Device::flex());
-    let mut store = SafetensorsStore::from_bytes(None);
-    let ser = |e: burn::store::SafetensorsStoreError| Error::Serialise { what: arch.name(), source: Box::new(e) };
-    net.save_into(&mut store).map_err(ser)?;
-    let bytes = store.get_bytes().map_err(ser)?;
-    let (entries, _) = read_safetensors(&bytes, &arch.name())?;
-    Ok(entries.into_iter().filter_map(|e| torch_name(&e.name).map(|t| (t, e.name))).collect())
+    Ok(crate::model::weights::param_shapes(arch).into_iter().filter_map(|(b, _)| torch_name(&b).map(|t| (t, b))).collect())
 }
 
 /// A model file written with PyTorch names (by `pipeline export`, or fine-tuned in PyTorch and
@@ -261,6 +255,23 @@ mod tests {
     use super::*;
 
     #[test]
+    #[cfg(feature = "train")]
+    fn the_parameter_list_is_burns() {
+        use crate::model::Arch;
+        use burn::store::{ModuleSnapshot, SafetensorsStore};
+        for arch in [Arch::Unet { base: 4 }, Arch::BurstUnet { base: 4 }, Arch::Shallow { width: 5 }] {
+            let mut store = SafetensorsStore::from_bytes(None);
+            crate::model::Net::new(arch, &burn::tensor::Device::flex()).save_into(&mut store).unwrap();
+            let (entries, _) = read_safetensors(&store.get_bytes().unwrap(), "burn").unwrap();
+            let mut burn: Vec<(String, Vec<usize>)> = entries.into_iter().map(|e| (e.name, e.shape)).collect();
+            let mut ours = crate::model::weights::param_shapes(arch);
+            burn.sort();
+            ours.sort();
+            assert_eq!(ours, burn, "{}", arch.name());
+        }
+    }
+
+    #[test]
     fn burn_names_map_to_the_torch_modules() {
         for (b, t) in [
             ("Unet.inc.a.conv.weight", "inc.a.0.weight"),
@@ -301,6 +312,7 @@ mod tests {
     }
 
     #[test]
+    #[cfg(feature = "train")]
     fn half_precision_files_widen_back_within_f16_rounding_and_load() {
         // The shallow model is stored in F32.
         let src = include_bytes!("../../models/shallow32-coded/model.safetensors").as_slice();
@@ -332,6 +344,7 @@ mod tests {
     }
 
     #[test]
+    #[cfg(feature = "train")]
     fn an_exported_model_loads_back_with_the_same_weights() {
         let (_, torch) = to_torch(crate::model::infer::DEFAULT_MODEL, "embedded").unwrap();
         let back = from_torch(&torch, "t").unwrap().expect("torch names are converted");

@@ -319,6 +319,9 @@ pub struct Counters {
     pub inputs_total: AtomicU64,
     /// What each source measured of its inputs (path, size, frame rate, frame counts).
     pub inputs: std::sync::Mutex<Vec<InputReport>>,
+    /// What the sink says of its own work, shown after the counts (the `trainer` sink: its
+    /// step, loss and validation PSNR).
+    pub status: std::sync::Mutex<String>,
 }
 
 /// One input as the report shows it.

@@ -56,7 +56,7 @@ impl StageConfig for TrainerSinkConfig {
         "generate-report"
     }
     fn build(&self, ctx: &BuildContext) -> crate::Result<Built> {
-        Ok(Built::Sink(Box::new(TrainerSink::new(self, ctx.seed)?)))
+        Ok(Built::Sink(Box::new(TrainerSink::new(self, ctx.seed, ctx.counters.clone())?)))
     }
 }
 
@@ -88,12 +88,14 @@ pub struct TrainerSink {
     rng: Rng,
     failed: Vec<(String, String)>,
     summary: Option<TrainReport>,
+    /// The run's counters: the sink's step, loss and validation go on its progress line.
+    counters: std::sync::Arc<crate::stage::Counters>,
 }
 
 impl TrainerSink {
     /// # Errors
     /// As [`Trainer::new`].
-    pub fn new(cfg: &TrainerSinkConfig, seed: u64) -> Result<TrainerSink> {
+    pub fn new(cfg: &TrainerSinkConfig, seed: u64, counters: std::sync::Arc<crate::stage::Counters>) -> Result<TrainerSink> {
         let t = Trainer::new(
             &cfg.to_train_config(seed),
             &TrainOptions { resume: false, overwrite: false, progress: crate::progress::ProgressMode::Never, stop_after: None },
@@ -104,6 +106,7 @@ impl TrainerSink {
             rng: Rng::new(hash(&[seed, hash_str("stream-shuffle")])),
             failed: Vec::new(),
             summary: None,
+            counters,
         })
     }
 
@@ -113,6 +116,9 @@ impl TrainerSink {
         while !t.done() && (self.buffer.len() >= cap || (drain && self.buffer.len() >= batch)) {
             let b: Vec<Pair> = (0..batch).map(|_| self.buffer.swap_remove(self.rng.below(self.buffer.len()))).collect();
             t.train_step(&b)?;
+            if let Ok(mut s) = self.counters.status.lock() {
+                *s = t.status();
+            }
         }
         Ok(())
     }

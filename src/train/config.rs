@@ -39,8 +39,10 @@ pub struct OptimConfig {
     pub lr: f64,
     #[serde(default = "d_schedule")]
     pub schedule: LrSchedule,
-    #[serde(default = "d_warmup")]
-    pub warmup_steps: usize,
+    /// Steps of linear warm-up before the schedule; missing: 20, or a tenth of `steps` where
+    /// that is fewer (a short test run still reaches its full rate).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub warmup_steps: Option<usize>,
     #[serde(default = "d_lr_min")]
     pub lr_min_factor: f64,
     /// Huber delta on the [0, 1] scale of encoded values.
@@ -77,7 +79,7 @@ impl Default for OptimConfig {
             batch: d_batch(),
             lr: d_lr(),
             schedule: d_schedule(),
-            warmup_steps: d_warmup(),
+            warmup_steps: None,
             lr_min_factor: d_lr_min(),
             huber_delta: d_delta(),
             adam_epsilon: d_adam_eps(),
@@ -165,9 +167,6 @@ fn d_lr() -> f64 {
 fn d_schedule() -> LrSchedule {
     LrSchedule::Cosine
 }
-fn d_warmup() -> usize {
-    20
-}
 fn d_lr_min() -> f64 {
     0.1
 }
@@ -193,6 +192,13 @@ pub(crate) fn d_ckpt() -> usize {
     100
 }
 
+impl OptimConfig {
+    /// The warm-up steps: `warmup_steps`, or 20 (a tenth of `steps` where that is fewer).
+    pub fn warmup(&self) -> usize {
+        self.warmup_steps.unwrap_or((self.steps / 10).min(20))
+    }
+}
+
 impl TrainConfig {
     /// Every value error, each naming its key.
     pub fn validate(&self) -> Vec<crate::checks::ConfigError> {
@@ -209,6 +215,14 @@ impl TrainConfig {
         c.range_usize("optim.steps", self.optim.steps, 1, 100_000_000);
         c.range_usize("optim.batch", self.optim.batch, 1, 4096);
         c.range("optim.lr", self.optim.lr, 1e-8, 1.0);
+        if let Some(w) = self.optim.warmup_steps {
+            if w > 0 && w >= self.optim.steps {
+                c.fail(
+                    "optim.warmup_steps",
+                    format!("is {w}, not below optim.steps ({}): the run would end before its full learning rate", self.optim.steps),
+                );
+            }
+        }
         c.range("optim.lr_min_factor", self.optim.lr_min_factor, 0.0, 1.0);
         c.range("optim.huber_delta", self.optim.huber_delta, 1e-6, 10.0);
         c.range("optim.adam_epsilon", self.optim.adam_epsilon, 1e-12, 1.0);
@@ -232,19 +246,20 @@ impl TrainConfig {
             LrSchedule::Cosine => format!("cosine from {:e} to {:e}", o.lr, o.lr * o.lr_min_factor),
         };
         let from = self.init.as_ref().map_or(String::from("fresh weights"), |i| format!("fine-tuning {i}"));
-        format!("{shape} over steps 1 to {} after {} warm-up steps; {from}", o.steps, o.warmup_steps)
+        format!("{shape} over steps 1 to {} after {} warm-up steps; {from}", o.steps, o.warmup())
     }
 
     /// Learning rate at `step` (0-based).
     pub fn lr_at(&self, step: usize) -> f64 {
         let o = &self.optim;
-        if step < o.warmup_steps {
-            return o.lr * (step + 1) as f64 / o.warmup_steps as f64;
+        let warmup = o.warmup();
+        if step < warmup {
+            return o.lr * (step + 1) as f64 / warmup as f64;
         }
         match o.schedule {
             LrSchedule::Constant => o.lr,
             LrSchedule::Cosine => {
-                let t = (step - o.warmup_steps) as f64 / (o.steps.saturating_sub(o.warmup_steps)).max(1) as f64;
+                let t = (step - warmup) as f64 / (o.steps.saturating_sub(warmup)).max(1) as f64;
                 let min = o.lr * o.lr_min_factor;
                 min + 0.5 * (o.lr - min) * (1.0 + (std::f64::consts::PI * t.min(1.0)).cos())
             }

@@ -62,6 +62,11 @@ pub struct TrainOptions {
 /// Bad shards (named), an unwritable output folder, or a non-finite loss (naming the step; the
 /// last good checkpoint stays).
 pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
+    // Every value error first, all at once (the shards are only looked for in a valid file).
+    let errs = cfg.validate();
+    if !errs.is_empty() {
+        return Err(Error::Config(errs));
+    }
     // Shards that match nothing are a usage error naming the key, found before the output
     // folder is made.
     let shards = crate::io::paths::expand_paths(&cfg.data.shards, &["tar"]).map_err(|e| match e {

@@ -305,6 +305,14 @@ impl Trainer {
         Ok(())
     }
 
+    /// The last step in words: `step 120/2000, loss 0.01234, val PSNR 28.10` (the `trainer`
+    /// sink's part of a run's progress line).
+    pub fn status(&self) -> String {
+        let loss = self.losses.last().map_or(String::new(), |l| format!(", loss {:.5}", l.loss));
+        let val = self.vals.last().map_or(String::new(), |v| format!(", val PSNR {:.2} at step {}", v.model.psnr_rgb, v.step));
+        format!("step {}/{}{loss}{val}", self.step, self.end)
+    }
+
     /// True if the step that ends at `done` writes a checkpoint.
     pub fn saves_after(&self, done: usize) -> bool {
         done.is_multiple_of(self.cfg.output.checkpoint_every) || done == self.end

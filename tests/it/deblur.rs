@@ -283,7 +283,7 @@ fn grey_alpha_and_16_bit_pngs_come_back_in_their_own_layout_and_what_a_format_ca
         let n = w * h * channels * if sixteen { 2 } else { 1 };
         // Grey-ish colour samples (three equal values would hide a channel mix-up) and a ramp of alpha.
         let data: Vec<u8> = (0..n).map(|i| (pipeline::rng::hash(&[channels as u64, i as u64]) % 256) as u8).collect();
-        let s = pipeline::io::png::Samples { width: w, height: h, channels, sixteen, data };
+        let s = pipeline::io::png::Samples { width: w, height: h, channels, sixteen, data, expanded: None };
         let mut buf = Vec::new();
         pipeline::io::png::write_samples(&mut buf, &s).unwrap();
         std::fs::write(src.join(name), buf).unwrap();

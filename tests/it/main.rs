@@ -10,6 +10,7 @@ mod decode;
 mod eval;
 #[cfg(feature = "train")]
 mod figure;
+mod first_hour;
 mod generate;
 mod path_safety;
 mod psf_cli;

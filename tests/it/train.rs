@@ -225,7 +225,7 @@ fn fine_tuning_starts_from_the_init_models_weights_on_a_schedule_of_its_own() {
     cb.init = Some(a.display().to_string());
     cb.optim.steps = 8;
     cb.optim.lr = 1e-8;
-    cb.optim.warmup_steps = 0;
+    cb.optim.warmup_steps = Some(0);
     let rb = train(&cb, &opts(None, false)).unwrap();
     // A run of its own (issue 31): steps 1 to 8 on a new schedule warming up to its own optim.lr,
     // the initial model's history kept beside it.
@@ -245,6 +245,7 @@ fn fine_tuning_starts_from_the_init_models_weights_on_a_schedule_of_its_own() {
     let fresh = scratch("train_init_fresh");
     let mut cf = config(&shards, &fresh, "");
     cf.optim.steps = 1;
+    cf.optim.warmup_steps = None;
     cf.optim.lr = 1e-8;
     train(&cf, &opts(None, false)).unwrap();
     let wf = weights(&fresh.join("model-0000001.safetensors"));
@@ -307,7 +308,7 @@ fn training_straight_from_the_generator_stream() {
             "-o",
             out.to_str().unwrap(),
             "--progress",
-            "never",
+            "lines",
         ])
         .args(["--set", "sources.clips.clips=40", "--set", "sources.clips.size=[64, 64]", "--set", "sources.clips.frames=9"])
         .args(["--set", "transforms.patches.size=32", "--set", "sinks.train.model={ type = \"shallow\", width = 8 }"])
@@ -317,6 +318,8 @@ fn training_straight_from_the_generator_stream() {
     assert!(o.status.success(), "{}", stderr(&o));
     let r: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
     assert_eq!(r["steps"], 5);
+    // The run's progress says where training is, not only how many inputs were read.
+    assert!(stderr(&o).contains("step 5/5, loss "), "{}", stderr(&o));
     assert!(!r["val_inputs"].as_array().unwrap().is_empty());
     assert!(out.join("model-0000005.safetensors").exists() && out.join("curves.png").exists());
     // It stopped the generator once trained: fewer clips read than asked for.

@@ -46,7 +46,6 @@ pub fn deblur(width: usize, height: usize, repeats: usize, burst: Option<usize>)
     use crate::model::Arch;
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let script = torch_script();
-    let device = burn::tensor::Device::flex();
     let frame: Vec<u8> = (0..width * height * 3).map(|i| (crate::rng::hash(&[i as u64 / 7]) % 256) as u8).collect();
     let mut out = Vec::new();
     let mut names: Vec<String> = std::fs::read_dir(root.join("models"))
@@ -58,16 +57,17 @@ pub fn deblur(width: usize, height: usize, repeats: usize, burst: Option<usize>)
     names.sort();
     for name in &names {
         let path = root.join("models").join(name).join("model.safetensors");
-        let (net, arch) = crate::train::load_model(&path, &device)?;
+        let weights = crate::model::weights::Weights::read(&path)?;
+        let arch = weights.arch;
+        let net = crate::model::fast::FastNet::from_weights(weights);
         // With --burst, only U-Nets, each timed as a burst U-Net of its width (the weights do
         // not change the time; a single-frame U-Net becomes one with its time conditioning at zero).
         let (net, arch) = match (burst, arch) {
             (None, a) => (net, a),
             (Some(_), crate::model::Arch::BurstUnet { .. }) => (net, arch),
-            (Some(_), crate::model::Arch::Unet { base }) => (net.into_burst(&device), crate::model::Arch::BurstUnet { base }),
+            (Some(_), crate::model::Arch::Unet { base }) => (net.into_burst(), crate::model::Arch::BurstUnet { base }),
             (Some(_), _) => continue,
         };
-        let net = crate::model::fast::FastNet::from_net(&net);
         let time = |tiling: Tiling| {
             let mut t = Vec::new();
             for r in 0..repeats + 1 {

@@ -10,7 +10,7 @@ use std::time::Instant;
 
 #[cfg(feature = "ffmpeg")]
 mod clip;
-#[cfg(feature = "train")]
+#[cfg(feature = "infer")]
 mod deblur;
 mod decode;
 mod generate;
@@ -19,7 +19,7 @@ mod psf;
 mod train;
 #[cfg(feature = "ffmpeg")]
 use clip::*;
-#[cfg(feature = "train")]
+#[cfg(feature = "infer")]
 pub use deblur::*;
 pub use decode::*;
 pub use generate::*;
@@ -57,6 +57,13 @@ pub(super) fn python_imports(modules: &str) -> bool {
         .is_ok_and(|s| s.success())
 }
 
+/// `benches/torch_models.py` when [`python`] can import torch (the PyTorch baseline), else `None`.
+#[cfg(feature = "infer")]
+pub(super) fn torch_script() -> Option<std::path::PathBuf> {
+    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/torch_models.py");
+    (python_imports("torch") && script.exists()).then_some(script)
+}
+
 /// Resets the peak-RSS counter (Linux 4.0+); false where unsupported.
 pub fn reset_peak_rss() -> bool {
     std::fs::write("/proc/self/clear_refs", "5").is_ok()
@@ -81,7 +88,7 @@ pub struct ClipArgs {
 pub enum BenchCommand {
     /// Deblurring speed (frames/s) of each shipped model on a 1280x720 frame, whole and in
     /// tiles, beside PyTorch CPU on the same architecture when torch is installed.
-    #[cfg(feature = "train")]
+    #[cfg(feature = "infer")]
     Deblur {
         #[arg(long, default_value_t = 1280)]
         width: usize,
@@ -179,7 +186,7 @@ pub fn command(c: BenchCommand) -> anyhow::Result<()> {
             println!("{}", serde_json::to_string_pretty(&r)?);
             Ok(())
         }
-        #[cfg(feature = "train")]
+        #[cfg(feature = "infer")]
         BenchCommand::Deblur { width, height, repeats, burst } => {
             let r = deblur(width, height, repeats as usize, burst.map(usize::from))?;
             println!("{}", serde_json::to_string_pretty(&r)?);

@@ -267,9 +267,3 @@ pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize, rounds:
     }
     Ok(out)
 }
-
-/// `benches/torch_models.py` when [`python`] can import torch (the PyTorch baseline), else `None`.
-pub(super) fn torch_script() -> Option<std::path::PathBuf> {
-    let script = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/torch_models.py");
-    (python_imports("torch") && script.exists()).then_some(script)
-}

@@ -17,11 +17,15 @@ pub struct Conv {
 }
 
 impl Conv {
+    #[cfg(feature = "train")]
     pub(super) fn from_burn(c: &Conv2d) -> Conv {
         let [cout, cin, k, k2] = c.weight.val().dims();
         assert_eq!(k, k2, "square kernels only");
-        let w = values(c.weight.val());
-        let b = c.bias.as_ref().map(|b| values(b.val()));
+        Conv::from_parts(cout, cin, k, values(c.weight.val()), c.bias.as_ref().map(|b| values(b.val())))
+    }
+    /// A `k x k` convolution from its weights `[cout, cin, k, k]` and bias.
+    pub(super) fn from_parts(cout: usize, cin: usize, k: usize, w: Vec<f32>, b: Option<Vec<f32>>) -> Conv {
+        assert_eq!(w.len(), cout * cin * k * k, "weights of a {cout}x{cin}x{k}x{k} convolution");
         Conv {
             cin,
             cout,
@@ -34,6 +38,7 @@ impl Conv {
             wino: Default::default(),
         }
     }
+    #[cfg(feature = "train")]
     pub(super) fn write(&self, c: &mut Conv2d) {
         c.weight = Param::initialized(c.weight.id, tensor(&self.w, [self.cout, self.cin, self.k, self.k], &c.weight.val().device()));
         if let (Some(p), Some(b)) = (c.bias.as_mut(), &self.b) {
@@ -118,22 +123,20 @@ pub struct ConvBnAct {
 }
 
 impl ConvBnAct {
+    #[cfg(feature = "train")]
     pub(super) fn from_burn(conv: &Conv2d, bn: &BatchNorm, slope: f32) -> ConvBnAct {
-        let c = bn.gamma.val().dims()[0];
-        ConvBnAct {
-            conv: Conv::from_burn(conv),
-            gamma: values(bn.gamma.val()),
-            beta: values(bn.beta.val()),
-            rmean: values(bn.running_mean.value_sync()),
-            rvar: values(bn.running_var.value_sync()),
-            momentum: bn.momentum as f32,
-            eps: bn.epsilon as f32,
-            slope,
-            ggamma: vec![0.0; c],
-            gbeta: vec![0.0; c],
-            cache: None,
-        }
+        let bn_parts = [bn.gamma.val(), bn.beta.val(), bn.running_mean.value_sync(), bn.running_var.value_sync()].map(values);
+        ConvBnAct::from_parts(Conv::from_burn(conv), bn_parts, (bn.momentum as f32, bn.epsilon as f32), slope)
     }
+    /// A convolution with its BatchNorm (`[gamma, beta, running mean, running variance]`,
+    /// `(momentum, epsilon)`) and an activation of negative `slope` (0: ReLU).
+    pub(super) fn from_parts(conv: Conv, bn: [Vec<f32>; 4], (momentum, eps): (f32, f32), slope: f32) -> ConvBnAct {
+        let [gamma, beta, rmean, rvar] = bn;
+        let c = conv.cout;
+        assert!([&gamma, &beta, &rmean, &rvar].iter().all(|v| v.len() == c), "one BatchNorm value per channel");
+        ConvBnAct { conv, gamma, beta, rmean, rvar, momentum, eps, slope, ggamma: vec![0.0; c], gbeta: vec![0.0; c], cache: None }
+    }
+    #[cfg(feature = "train")]
     pub(super) fn write(&self, conv: &mut Conv2d, bn: &mut BatchNorm) {
         self.conv.write(conv);
         let dev = bn.gamma.val().device();
@@ -256,9 +259,11 @@ pub(super) struct Double {
 }
 
 impl Double {
+    #[cfg(feature = "train")]
     pub(super) fn from_burn(d: &crate::model::DoubleConv) -> Double {
         Double { a: ConvBnAct::from_burn(&d.a.conv, &d.a.bn, 0.01), b: ConvBnAct::from_burn(&d.b.conv, &d.b.bn, 0.01) }
     }
+    #[cfg(feature = "train")]
     pub(super) fn write(&self, d: &mut crate::model::DoubleConv) {
         self.a.write(&mut d.a.conv, &mut d.a.bn);
         self.b.write(&mut d.b.conv, &mut d.b.bn);
@@ -284,6 +289,7 @@ impl Double {
 /// w[ci, co, a, b] x[ci, i, j] + bias[co]`, a matrix product plus a shuffle.
 #[derive(Debug, Clone)]
 pub(super) struct UpConv {
+    #[cfg_attr(not(feature = "train"), allow(dead_code))] // read by the burn conversion
     pub(super) cin: usize,
     pub(super) cout: usize,
     pub(super) w: Vec<f32>,
@@ -294,13 +300,18 @@ pub(super) struct UpConv {
 }
 
 impl UpConv {
+    #[cfg(feature = "train")]
     pub(super) fn from_burn(c: &ConvTranspose2d) -> UpConv {
         let [cin, cout, kh, kw] = c.weight.val().dims();
         assert!(kh == 2 && kw == 2 && c.stride == [2, 2], "2x2 stride-2 transposed convolutions only");
-        let w = values(c.weight.val());
-        let b = c.bias.as_ref().map_or(vec![0.0; cout], |b| values(b.val()));
+        UpConv::from_parts(cin, cout, values(c.weight.val()), c.bias.as_ref().map_or(vec![0.0; cout], |b| values(b.val())))
+    }
+    /// The 2x2 stride-2 transposed convolution from its weights `[cin, cout, 2, 2]` and bias.
+    pub(super) fn from_parts(cin: usize, cout: usize, w: Vec<f32>, b: Vec<f32>) -> UpConv {
+        assert!(w.len() == cin * cout * 4 && b.len() == cout, "weights of a {cin}x{cout}x2x2 transposed convolution");
         UpConv { cin, cout, gw: vec![0.0; w.len()], gb: vec![0.0; cout], w, b, x: None }
     }
+    #[cfg(feature = "train")]
     pub(super) fn write(&self, c: &mut ConvTranspose2d) {
         c.weight = Param::initialized(c.weight.id, tensor(&self.w, [self.cin, self.cout, 2, 2], &c.weight.val().device()));
         if let Some(p) = c.bias.as_mut() {
@@ -379,11 +390,17 @@ pub(super) struct Film {
 use crate::model::{time_features, TIME_FEATURES};
 
 impl Film {
+    #[cfg(feature = "train")]
     pub(super) fn from_burn(f: &crate::model::Film) -> Film {
-        let (g, b) = (values(f.gamma.val()), values(f.beta.val()));
+        Film::from_parts(values(f.gamma.val()), values(f.beta.val()))
+    }
+    /// From `G` and `B`, each `[TIME_FEATURES, c]`.
+    pub(super) fn from_parts(g: Vec<f32>, b: Vec<f32>) -> Film {
         let c = g.len() / TIME_FEATURES;
+        assert!(g.len() == c * TIME_FEATURES && b.len() == g.len(), "FiLM weights of [{TIME_FEATURES}, c]");
         Film { c, gg: vec![0.0; g.len()], gb: vec![0.0; b.len()], g, b, cache: None }
     }
+    #[cfg(feature = "train")]
     pub(super) fn write(&self, f: &mut crate::model::Film) {
         let dev = f.gamma.val().device();
         f.gamma = Param::initialized(f.gamma.id, tensor(&self.g, [TIME_FEATURES, self.c], &dev));

@@ -5,9 +5,10 @@
 //! Why it exists: burn 0.22's CPU backend (flex) computes a convolution's weight gradient with a
 //! nearly scalar loop for small batches and its input gradient through a col2im scatter, so a
 //! training step ran 6 to 11 times slower than PyTorch on the same CPU. This module is the one
-//! boundary around that work-around: [`FastNet::from_net`] copies a burn [`Net`]'s weights and
-//! running statistics in, [`FastNet::write_into`] copies them back, so burn keeps the module
-//! definitions, safetensors checkpoints and the GPU backends. When burn's CPU convolutions catch
+//! boundary around that work-around: `FastNet::from_net` copies a burn `Net`'s weights and
+//! running statistics in, `FastNet::write_into` copies them back (feature `train`), so burn keeps
+//! the module definitions, safetensors checkpoints and the GPU backends; inference builds the
+//! network from a model file's weights alone ([`FastNet::from_weights`]), without burn. When burn's CPU convolutions catch
 //! up, deleting this file (and the `Engine::Fast` arms that call it) is the whole change.
 //!
 //! Layout: `[n, c, h, w]` row-major f32, as burn's. Convolutions are stride 1 with zero
@@ -31,14 +32,19 @@ mod layers;
 mod net;
 mod optim;
 mod tensor;
-#[cfg(test)]
+#[cfg(all(test, feature = "train"))]
 mod tests;
 mod winograd;
 
+#[cfg(feature = "train")]
 use super::Net;
+#[cfg(feature = "train")]
 use burn::module::Param;
+#[cfg(feature = "train")]
 use burn::nn::conv::{Conv2d, ConvTranspose2d};
+#[cfg(feature = "train")]
 use burn::nn::BatchNorm;
+#[cfg(feature = "train")]
 use burn::tensor::{Tensor, TensorData};
 use kernels::*;
 use layers::*;

@@ -96,7 +96,67 @@ pub struct FastNet {
 }
 
 impl FastNet {
+    /// The network of a model file's weights ([`Weights`]: no burn needed).
+    ///
+    /// [`Weights`]: crate::model::weights::Weights
+    pub fn from_weights(mut wt: crate::model::weights::Weights) -> FastNet {
+        // burn's BatchNorm defaults, which every trained model used.
+        const BN: (f32, f32) = (0.1, 1e-5);
+        let arch = wt.arch;
+        let mut conv_bn = |p: &str, slope: f32| {
+            let w = wt.take(&format!("{p}.conv.weight"));
+            let bn = ["gamma", "beta", "running_mean", "running_var"].map(|s| wt.take(&format!("{p}.bn.{s}")));
+            let (cout, k) = (bn[0].len(), 3);
+            let conv = Conv::from_parts(cout, w.len() / (cout * k * k), k, w, None);
+            ConvBnAct::from_parts(conv, bn, BN, slope)
+        };
+        let kind = match arch {
+            crate::model::Arch::Unet { .. } | crate::model::Arch::BurstUnet { .. } => {
+                let mut double = |p: &str| Double { a: conv_bn(&format!("{p}.a"), 0.01), b: conv_bn(&format!("{p}.b"), 0.01) };
+                let inc = double("Unet.inc");
+                let downs = (1..=4).map(|k| Down { conv: double(&format!("Unet.down{k}.conv")), idx: Vec::new(), hw_in: (0, 0) }).collect();
+                let convs: Vec<Double> = (1..=4).map(|k| double(&format!("Unet.up{k}.conv"))).collect();
+                let ups = convs
+                    .into_iter()
+                    .enumerate()
+                    .map(|(i, conv)| {
+                        let (w, b) = (wt.take(&format!("Unet.up{}.up.weight", i + 1)), wt.take(&format!("Unet.up{}.up.bias", i + 1)));
+                        let c = b.len();
+                        let up = UpConv::from_parts(c, c, w, b);
+                        let skip = conv.a.conv.cin - up.cout;
+                        Up { up, conv, skip }
+                    })
+                    .collect();
+                let (w, b) = (wt.take("Unet.outc.weight"), wt.take("Unet.outc.bias"));
+                let outc = Conv::from_parts(3, w.len() / 3, 1, w, Some(b));
+                let film = arch.is_burst().then(|| Film::from_parts(wt.take("Unet.film.gamma"), wt.take("Unet.film.beta")));
+                Kind::Unet(FUnet { inc, downs, ups, outc, film })
+            }
+            crate::model::Arch::Shallow { .. } => {
+                let blocks = (0..9).map(|i| conv_bn(&format!("Shallow.blocks.{i}"), 0.0)).collect();
+                let (w, b) = (wt.take("Shallow.out.weight"), wt.take("Shallow.out.bias"));
+                let out = Conv::from_parts(3, w.len() / 27, 3, w, Some(b));
+                Kind::Shallow(FShallow { blocks, out })
+            }
+        };
+        FastNet { kind, crop: None }
+    }
+
+    /// A single-frame U-Net as a burst U-Net whose time conditioning is zero (the same output
+    /// at every time); any other network unchanged.
+    pub fn into_burst(mut self) -> FastNet {
+        if let Kind::Unet(u) = &mut self.kind {
+            if u.film.is_none() {
+                let c = u.ups.last().expect("levels").conv.a.conv.cin;
+                let zeros = vec![0.0; crate::model::TIME_FEATURES * c];
+                u.film = Some(Film::from_parts(zeros.clone(), zeros));
+            }
+        }
+        self
+    }
+
     /// The weights and running statistics of a burn network.
+    #[cfg(feature = "train")]
     pub fn from_net(net: &Net) -> FastNet {
         let kind = match net {
             Net::Unet(u) => Kind::Unet(FUnet {
@@ -126,6 +186,7 @@ impl FastNet {
     }
 
     /// `net` with this network's weights and running statistics (parameter ids kept).
+    #[cfg(feature = "train")]
     pub fn write_into(&self, mut net: Net) -> Net {
         match (&self.kind, &mut net) {
             (Kind::Unet(f), Net::Unet(u)) => {

@@ -26,20 +26,24 @@ impl T4 {
         &self.d[s * len..(s + 1) * len]
     }
     /// From a burn tensor (any device).
+    #[cfg(feature = "train")]
     pub fn from_tensor(t: Tensor<4>) -> T4 {
         let [n, c, h, w] = t.dims();
         T4::new(n, c, h, w, values(t))
     }
+    #[cfg(feature = "train")]
     pub fn to_tensor(&self, device: &burn::tensor::Device) -> Tensor<4> {
         Tensor::<4>::from_data(TensorData::new(self.d.clone(), [self.n, self.c, self.h, self.w]), device)
     }
 }
 
+#[cfg(feature = "train")]
 pub(super) fn tensor<const D: usize>(v: &[f32], shape: [usize; D], device: &burn::tensor::Device) -> Tensor<D> {
     Tensor::<D>::from_data(TensorData::new(v.to_vec(), shape), device)
 }
 
 /// The values of a float tensor of any rank, row-major.
+#[cfg(feature = "train")]
 pub(super) fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
     t.into_data().try_to_vec::<f32>().expect("f32 tensor")
 }

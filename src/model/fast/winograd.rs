@@ -411,7 +411,7 @@ mod tests {
     }
 }
 
-#[cfg(test)]
+#[cfg(all(test, feature = "train"))]
 mod timing {
     use super::*;
     use crate::model::fast::kernels::conv_forward;
