@@ -51,8 +51,8 @@ pub struct FailedInput {
     pub error: String,
 }
 
-/// A run's report: `reports/{generate|run}-{time}-{pid}.json`, one per run, never overwritten,
-/// and a copy as `report.json` (the latest run).
+/// A run's report: `reports/report[-{task}-of-{n}]-{time}-{pid}.json`, one per run, never
+/// overwritten, and a copy as `report.json` (the latest run).
 #[derive(Debug, Clone, Serialize)]
 pub struct Report {
     #[serde(flatten)]

@@ -213,18 +213,20 @@ pub fn video(
     let mut writer = VideoWriter::create(&tmp, w, h, rate, lossless).map_err(Error::video(output))?;
     let bar = Bar::new(progress, "deblur", "frames", reader.info.frames_announced);
     let result = (|| -> Result<u64> {
+        let stopped = || Error::Interrupted(format!("{}: the unfinished video was removed; run the same command again", output.display()));
         while let Some(f) = reader.next_frame().map_err(Error::video(input))? {
             if crate::signal::interrupted() {
-                return Err(Error::Interrupted(format!(
-                    "{}: the unfinished video was removed; run the same command again",
-                    output.display()
-                )));
+                return Err(stopped());
             }
             let rgb = to_rgb8(&f, reader.float);
             let outs = match times {
                 Some(ts) => crate::model::infer::run_frame_burst(net, &rgb, w, h, tiling, ts),
                 None => vec![crate::model::infer::run_frame(net, &rgb, w, h, tiling)],
             };
+            // A signal between two tiles stops the frame; what came back is not written.
+            if crate::signal::interrupted() {
+                return Err(stopped());
+            }
             for out in outs {
                 writer.write_rgb8(&out).map_err(Error::video(output))?;
             }
