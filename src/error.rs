@@ -46,6 +46,10 @@ pub enum Error {
     /// burn could not serialise a network or optimizer state (`what` names which); the cause is kept.
     #[error("{what}: burn could not serialise it")]
     Serialise { what: String, source: Box<dyn std::error::Error + Send + Sync> },
+    /// A stage panicked (a bug): the run stopped, its sink removed what it had not finished and
+    /// the report says which stage. Exit code 1.
+    #[error("panicked (a bug; please report it with the report.json): {0}")]
+    Panicked(String),
     /// The worker threads could not be started (the OS refused them).
     #[error("could not start {what} threads")]
     Threads { what: &'static str, source: rayon::ThreadPoolBuildError },
