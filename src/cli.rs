@@ -78,7 +78,7 @@ pub enum Command {
     #[command(
         after_help = "Examples:\n  pipeline validate pipelines/*.toml\n  pipeline validate my.toml --set transforms.blur.window=11\n\nExit code 0 when every file is valid, 2 otherwise (every error of every file is printed)."
     )]
-    Validate(crate::commands::generate::ValidateArgs),
+    Validate(crate::commands::validate::ValidateArgs),
     /// Write a trained model with PyTorch state_dict names (python/pipeline/models.py's UNet and
     /// Shallow), for fine-tuning or deployment in PyTorch.
     #[cfg(feature = "infer")]
@@ -123,7 +123,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Psf(a) => commands::psf::command(a),
         Command::Generate(a) => commands::generate::generate(a),
         Command::Run(a) => commands::generate::run(a),
-        Command::Validate(a) => commands::generate::command(a),
+        Command::Validate(a) => commands::validate::command(a),
         #[cfg(feature = "train")]
         Command::Train(a) => commands::train::command(a),
         #[cfg(not(feature = "train"))]

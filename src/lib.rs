@@ -11,7 +11,8 @@
 //!   [`train`] (feature `train`, with burn): training.
 //! - [`commands`]: one file per command (psf, generate/run/validate, train, deblur, eval,
 //!   figure, bench); [`cli`] parses and dispatches.
-//! - [`scene`], [`recon`]: synthetic scenes and the classical reconstructions of the other cameras.
+//! - [`render`] (what the rendered sources draw: motions, synthetic scenes, textures), [`recon`]: the
+//!   classical reconstructions of the other cameras.
 
 // Numeric kernels index several arrays in step (planes, channels, taps): an index loop says so
 // more plainly than zipped iterators; and they take their sizes as plain arguments.
@@ -57,9 +58,9 @@ pub mod plot;
 pub mod progress;
 pub mod provenance;
 pub mod recon;
+pub mod render;
 pub mod rng;
 pub mod sample;
-pub mod scene;
 pub mod signal;
 pub mod stage;
 #[cfg(feature = "train")]

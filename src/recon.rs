@@ -5,7 +5,7 @@
 //! error (Wiener) reconstruction that is told the true kernel ([`wiener_known_kernel`]).
 
 use crate::optics::fft::{fast_size, reflect, FftConv};
-use crate::scene::sub_time;
+use crate::render::scene::sub_time;
 use num_complex::Complex32;
 
 /// How a smeared row meets its ends.

@@ -6,18 +6,15 @@ pub mod bench;
 pub mod deblur;
 #[cfg(all(feature = "infer", feature = "ffmpeg"))]
 pub mod eval;
-#[cfg(all(feature = "infer", feature = "ffmpeg"))]
-pub mod eval_burst;
 #[cfg(feature = "infer")]
 pub mod export;
 #[cfg(feature = "infer")]
 pub mod figure;
-#[cfg(all(feature = "infer", feature = "ffmpeg"))]
-pub mod figure_burst;
 pub mod generate;
 pub mod psf;
 #[cfg(feature = "train")]
 pub mod train;
+pub mod validate;
 
 use crate::progress::ProgressMode;
 use clap::Args;

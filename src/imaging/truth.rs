@@ -166,7 +166,7 @@ mod tests {
         let camera = Arc::new(Camera::new(&OpticsConfig::default(), &CameraConfig::default()));
         let mut b = Blurrer::new(camera, 5, 1, 0.0).unwrap();
         let (w, h) = (96, 80);
-        let tex = crate::stage::stills::procedural_texture(w, h, 7);
+        let tex = crate::render::texture::procedural_texture(w, h, 7);
         let lin: [Vec<f32>; 3] = std::array::from_fn(|c| tex[c].iter().map(|v| v * v).collect());
         // Frames moved by whole pixels (so shifting needs no interpolation): 2 px right per frame.
         let shifts: Vec<(f64, f64)> = (0..5).map(|j| (2.0 * (j as f64 - 2.0), -(j as f64 - 2.0))).collect();

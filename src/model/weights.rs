@@ -5,7 +5,6 @@
 //!
 //! [`FastNet`]: crate::model::fast::FastNet
 
-use crate::model::torch::torch_name;
 use crate::model::Arch;
 use crate::{Error, Result};
 use std::collections::HashMap;
@@ -70,6 +69,39 @@ fn arch_from_torch_shapes(header: &serde_json::Value) -> Option<Arch> {
         (None, Some(w)) => Some(Arch::Shallow { width: w }),
         _ => None,
     }
+}
+
+/// The PyTorch name of a burn parameter of our networks: `Unet.down1.conv.a.conv.weight` ->
+/// `downs.0.a.0.weight`, `...bn.gamma` -> `...1.weight`, `Unet.up2.up.weight` -> `ups.1.up.weight`.
+pub fn torch_name(burn: &str) -> Option<String> {
+    let (net, rest) = burn.split_once('.')?;
+    let parts: Vec<&str> = rest.split('.').collect();
+    let mut out: Vec<String> = Vec::new();
+    let mut i = 0;
+    while i < parts.len() {
+        let p = parts[i];
+        let next = parts.get(i + 1).copied();
+        match (net, p) {
+            ("Unet", d) if d.starts_with("down") => {
+                out.push(format!("downs.{}", d[4..].parse::<usize>().ok()?.checked_sub(1)?));
+                // `downK.conv.X`: torch's ModuleList holds the DoubleConv itself.
+                if next == Some("conv") {
+                    i += 1;
+                }
+            }
+            ("Unet", u) if u.starts_with("up") && u.len() > 2 && u[2..].chars().all(|c| c.is_ascii_digit()) => {
+                out.push(format!("ups.{}", u[2..].parse::<usize>().ok()?.checked_sub(1)?));
+            }
+            // A ConvBn's convolution (`... .conv.weight`); `upK.conv.a` is a DoubleConv.
+            (_, "conv") if matches!(next, Some("weight") | Some("bias")) => out.push("0".into()),
+            (_, "bn") => out.push("1".into()),
+            (_, "gamma") => out.push("weight".into()),
+            (_, "beta") => out.push("bias".into()),
+            (_, p) => out.push(p.into()),
+        }
+        i += 1;
+    }
+    Some(out.join("."))
 }
 
 /// Every trained tensor of a network of `arch` with its shape, under burn's names (the names of

@@ -233,7 +233,7 @@ impl Camera {
     /// The image of a point that travels `travel` pixels (x, y) at constant speed over a window
     /// of `n` sub-frames, centred where it is at mid-exposure: the camera's motion PSF for that
     /// velocity, per channel, on a `(2 half + 1)^2` grid (unit sum inside the grid). Sub-frame k
-    /// is at time t_k in [-1, 1] ([`crate::scene::sub_time`]), the point at `travel / 2 * t_k`.
+    /// is at time t_k in [-1, 1] ([`crate::render::scene::sub_time`]), the point at `travel / 2 * t_k`.
     ///
     /// # Errors
     /// As [`Camera::window`].
@@ -259,7 +259,7 @@ impl Camera {
             .iter()
             .enumerate()
             .map(|(k, kern)| {
-                let t = crate::scene::sub_time(k, n);
+                let t = crate::render::scene::sub_time(k, n);
                 SubframeKernel { shift: [kern.shift[0] + travel[0] / 2.0 * t, kern.shift[1] + travel[1] / 2.0 * t], ..kern.clone() }
             })
             .collect())

@@ -12,7 +12,6 @@ pub mod decode;
 pub mod frames;
 pub mod input;
 pub mod linearize;
-pub mod motion;
 pub mod noise;
 pub mod patches;
 pub mod scene;

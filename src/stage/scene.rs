@@ -1,4 +1,4 @@
-//! `scene`: the synthetic moving scenes of the paper's comparison figures ([`crate::scene`]).
+//! `scene`: the synthetic moving scenes of the paper's comparison figures ([`crate::render::scene`]).
 
 use super::input::emit_clip;
 use super::{BuildContext, Built, Counters, Emit, InputList, Needs, Source, StageConfig};
@@ -13,7 +13,7 @@ use std::sync::Arc;
 #[derive(Debug, Clone, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct SceneSourceConfig {
-    pub scene: crate::scene::SceneKind,
+    pub scene: crate::render::scene::SceneKind,
     /// [width, height]
     pub size: [usize; 2],
     /// Sub-frames per clip (one exposure).
@@ -29,7 +29,7 @@ pub struct SceneSourceConfig {
 
 impl Default for SceneSourceConfig {
     fn default() -> Self {
-        let p = crate::scene::SceneParams::default();
+        let p = crate::render::scene::SceneParams::default();
         SceneSourceConfig {
             scene: p.kind,
             size: [p.width, p.height],
@@ -71,7 +71,7 @@ impl StageConfig for SceneSourceConfig {
     }
 }
 
-/// `type = "scene"`: synthetic moving scenes ([`crate::scene`]), one exposure of `frames`
+/// `type = "scene"`: synthetic moving scenes ([`crate::render::scene`]), one exposure of `frames`
 /// sub-frames per clip, as encoded sRGB frames (a `linearize` with curve srgb gives back the
 /// rendered linear light).
 pub struct Scene {
@@ -84,7 +84,7 @@ pub struct Scene {
 impl Source for Scene {
     fn run(&mut self, out: &mut Emit) -> crate::Result<()> {
         let c = &self.cfg;
-        let params = crate::scene::SceneParams {
+        let params = crate::render::scene::SceneParams {
             kind: c.scene,
             width: c.size[0],
             height: c.size[1],

@@ -15,8 +15,8 @@ fn the_scene_source_feeds_the_pipeline_and_its_sharp_frame_is_the_render() {
     let (w, h, sharp) = read("sharp");
     assert_eq!((w, h), (64, 48));
     // The window's target is sub-frame 26 of 52.
-    let p = pipeline::scene::SceneParams { width: 64, height: 48, spokes: 12, ..Default::default() };
-    let want = p.render_at(pipeline::scene::sub_time(26, 52));
+    let p = pipeline::render::scene::SceneParams { width: 64, height: 48, spokes: 12, ..Default::default() };
+    let want = p.render_at(pipeline::render::scene::sub_time(26, 52));
     let curve = pipeline::optics::transfer::Curve::Srgb;
     let worst = (0..w * h * 3).map(|i| (sharp[i] as f64 - curve.encode(want[i % 3][i / 3] as f64) * 255.0).abs()).fold(0.0, f64::max);
     assert!(worst <= 1.0, "sharp frame differs from the render by {worst} levels");

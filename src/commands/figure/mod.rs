@@ -13,6 +13,8 @@
 //! re-encodes to sRGB and adds AWGN of `sigma` on the 0-255 scale; the fluttered shutter's image,
 //! brought to the same brightness, gets `sigma / 0.5` (it collects half the light).
 
+#[cfg(feature = "ffmpeg")]
+mod burst;
 use crate::frame::{Frame, FrameData};
 use crate::imaging::blur::Blurrer;
 use crate::io::write_atomic;
@@ -22,8 +24,8 @@ use crate::optics::transfer::{Curve, Encoder};
 use crate::optics::{Camera, CameraConfig, CameraKind, OpticsConfig};
 use crate::plot::{Canvas, Panel};
 use crate::recon::{lucy_richardson, Ends, FlutterSolver};
+use crate::render::scene::{SceneKind, SceneParams};
 use crate::rng::{hash, hash_str};
-use crate::scene::{SceneKind, SceneParams};
 use crate::{Error, Result};
 use rustfft::num_complex::Complex64;
 use std::path::{Path, PathBuf};
@@ -436,7 +438,7 @@ pub fn draw(name: FigureName, o: &FigureOptions, out: &Path) -> Result<FigureRep
         FigureName::Spectrum => spectrum(o, out)?,
         FigureName::Spoke => spoke(o, out)?,
         #[cfg(feature = "ffmpeg")]
-        FigureName::Burst => crate::commands::figure_burst::burst_strip(o, &o.clip, out)?,
+        FigureName::Burst => burst::burst_strip(o, &o.clip, out)?,
         #[cfg(not(feature = "ffmpeg"))]
         FigureName::Burst => return Err(Error::Usage("figure burst reads a video: it needs a build with the `ffmpeg` feature".into())),
     };
@@ -459,7 +461,7 @@ pub fn draw(name: FigureName, o: &FigureOptions, out: &Path) -> Result<FigureRep
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::scene::sub_time;
+    use crate::render::scene::sub_time;
 
     #[test]
     fn flutter_capture_of_an_object_moving_right_is_undone_by_least_squares() {

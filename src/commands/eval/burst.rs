@@ -6,7 +6,7 @@
 //! deblurred still), and the direction score, the share of windows whose first and last outputs
 //! are closer to the first and last sub-frames than to the last and first (50% is a coin).
 
-use super::eval::EvalFile;
+use super::EvalFile;
 use crate::imaging::{read_out, to_8bit};
 use crate::io::paths::expand_paths;
 use crate::io::write_atomic;
@@ -97,7 +97,7 @@ fn sq_dist(a: &[u8], b: &[u8]) -> f64 {
 /// Runs the burst evaluation and writes `burst.json` and `burst.md` under `out`.
 ///
 /// # Errors
-/// As [`super::eval::run`].
+/// As [`super::run`].
 pub fn run(
     f: &EvalFile,
     net: &FastNet,
@@ -111,7 +111,7 @@ pub fn run(
     let e = &f.eval;
     let paths = expand_paths(videos, crate::stage::input::VIDEO_EXTS)?;
     std::fs::create_dir_all(out).map_err(|err| Error::Io { path: out.to_path_buf(), cause: err })?;
-    let mut s = super::eval::Setup::new(f)?;
+    let mut s = super::Setup::new(f)?;
     let (throughput, half, spacing, tiling) = (s.throughput, s.half, s.spacing, s.tiling);
     let total = (paths.len() * e.windows_per_video * e.windows.len() * e.sigmas.len()) as u64;
     let bar = crate::progress::Bar::new(progress, "eval --burst", "windows", Some(total));
@@ -120,7 +120,7 @@ pub fn run(
         let first = e.skip as u64;
         let frames = s.frames(path, e)?;
         let (w, h) = (frames[0].width, frames[0].height);
-        let [rx, ry, rw, rh] = super::eval::region(w, h, e.crop);
+        let [rx, ry, rw, rh] = super::region(w, h, e.crop);
         let log = crate::imaging::truth::MotionLog::read(path)?;
         let centres = (0..e.windows_per_video as u64).map(|k| half + k * spacing).take_while(|&c| c + half < frames.len() as u64);
         for c in centres {

@@ -5,7 +5,7 @@
 //! Beside the PNG, `OUT.mp4` shows the three rows' frames one time after another (coded |
 //! conventional | true), looping well as a GIF (`ffmpeg -i OUT.mp4 OUT.gif`).
 
-use super::figure::{compose, FigureOptions, Score};
+use super::{compose, FigureOptions, Score};
 use crate::imaging::blur::Blurrer;
 use crate::imaging::{read_out, to_8bit};
 use crate::metrics::quality;
@@ -23,7 +23,7 @@ const N: usize = 9;
 /// Draws the strip into `out` (and `OUT.mp4`); returns each camera's burst scored at its first,
 /// middle and last sub-frame.
 pub fn burst_strip(o: &FigureOptions, clip: &Path, out: &Path) -> Result<Vec<Score>> {
-    let frames = super::eval::read_frames(clip, 0, N as u64 - 1, Curve::Srgb)?;
+    let frames = crate::commands::eval::read_frames(clip, 0, N as u64 - 1, Curve::Srgb)?;
     if frames.len() < N {
         return Err(Error::File { path: clip.to_path_buf(), why: format!("{} frames, the figure needs {N}", frames.len()) });
     }

@@ -243,7 +243,7 @@ impl Sprite {
                 let i = y * w + x;
                 s.alpha[i] = a;
                 for c in 0..3 {
-                    s.rgb[c][i] = a * super::stills::sample(&img[c], iw, ih, src.0 + px - 0.5, src.1 + py - 0.5);
+                    s.rgb[c][i] = a * super::texture::sample(&img[c], iw, ih, src.0 + px - 0.5, src.1 + py - 0.5);
                 }
             }
         }
@@ -441,7 +441,7 @@ impl WindowMotion {
             for x in 0..w {
                 let q = pose.inverse(self.centre, (x as f64 + 0.5, y as f64 + 0.5));
                 for c in 0..3 {
-                    planes[c][y * w + x] = super::stills::sample(&img[c], iw, ih, off.0 + q.0 - 0.5, off.1 + q.1 - 0.5);
+                    planes[c][y * w + x] = super::texture::sample(&img[c], iw, ih, off.0 + q.0 - 0.5, off.1 + q.1 - 0.5);
                 }
             }
         }
@@ -479,7 +479,7 @@ mod tests {
     use super::*;
 
     fn texture(w: usize, h: usize) -> [Vec<f32>; 3] {
-        super::super::stills::procedural_texture(w, h, 3)
+        super::super::texture::procedural_texture(w, h, 3)
     }
 
     fn only(kind: &str) -> MotionConfig {
@@ -533,7 +533,7 @@ mod tests {
             if matches!(kind, "still" | "pan" | "shake" | "rotate" | "zoom") {
                 let x = 40;
                 let y = 30;
-                let want = super::super::stills::sample(&img[1], iw, ih, off.0 + x as f64, off.1 + y as f64);
+                let want = super::super::texture::sample(&img[1], iw, ih, off.0 + x as f64, off.1 + y as f64);
                 assert!((mid[1][y * w + x] - want).abs() < 1e-5, "{kind}: middle frame moved");
             }
         }

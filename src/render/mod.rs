@@ -1,0 +1,8 @@
+//! What the `stills` and `scene` sources draw, apart from the stages that run them: the motions
+//! of a window (`motion.rs`: shake paths, pans, cut-out objects, rotation, zoom), the synthetic
+//! scenes of the paper's figures (`scene.rs`), sampling and textures (`texture.rs`). Depends on
+//! nothing above it (no stage, no command).
+
+pub mod motion;
+pub mod scene;
+pub mod texture;
