@@ -31,8 +31,170 @@ pub struct Trainer {
     pub(super) resumed_data: Option<String>,
 }
 
+/// The run's folder: refused when it holds what a run does not write (a fresh run), or nothing
+/// to resume (`--resume`); made, locked, its killed runs' temporaries removed, and for a fresh
+/// run its earlier checkpoints cleared (`--overwrite`) or refused.
+fn open_folder(cfg: &TrainConfig, opts: &TrainOptions) -> Result<(PathBuf, std::fs::File)> {
+    let dir = PathBuf::from(&cfg.output.dir);
+    if opts.resume {
+        if !dir.join("latest.json").exists() {
+            return Err(Error::Usage(format!(
+                "{}: nothing to resume (no latest.json: no checkpoint was written there); train without --resume to start a run",
+                dir.display()
+            )));
+        }
+    } else {
+        own_folder(&dir)?;
+    }
+    std::fs::create_dir_all(&dir).map_err(|e| Error::Io { path: dir.clone(), cause: e })?;
+    let lock = lock_run_folder(&dir)?;
+    // What a killed run of this folder left half-written (this machine, process gone).
+    for p in crate::io::remove_stale(&dir, 0) {
+        eprintln!("removed {} (left by a run that was killed)", p.display());
+    }
+    if !opts.resume {
+        fresh_run_folder(&dir, opts.overwrite)?;
+    }
+    Ok((dir, lock))
+}
+
+/// What an earlier report.json holds of its run.
+#[derive(Deserialize)]
+struct History {
+    steps: usize,
+    loss: Vec<LossPoint>,
+    validation: Vec<ValPoint>,
+    #[serde(default)]
+    before: Option<Before>,
+    config: Option<serde_json::Value>,
+}
+
+fn read_history(p: &Path) -> Option<History> {
+    std::fs::read(p).ok().and_then(|b| serde_json::from_slice(&b).ok())
+}
+
+/// Where a run starts: its model, the optimizer state (file and bytes) when resumed, the
+/// step, the history so far and the history of the model it was started from.
+struct Start {
+    model: Net,
+    optim: Option<(PathBuf, Vec<u8>)>,
+    step: usize,
+    history: (Vec<LossPoint>, Vec<ValPoint>),
+    before: Option<Before>,
+}
+
+impl Start {
+    /// Fresh weights: a function of the config's seed alone.
+    fn fresh(cfg: &TrainConfig, device: &Device) -> Start {
+        let mut model = Net::seeded(cfg.model, device, hash(&[cfg.seed, hash_str("init")]));
+        if cfg.optim.zero_init {
+            model = model.zero_last_layer(device);
+        }
+        Start { model, optim: None, step: 0, history: Default::default(), before: None }
+    }
+
+    /// A trained model's weights (`init`), on a schedule of its own (steps 1 to optim.steps,
+    /// peaking at optim.lr); the initial model's history is kept for the curves. A burst U-Net
+    /// starts from a single-frame U-Net of its width: the same weights, the time conditioning at
+    /// zero (at every time, what the U-Net gave).
+    fn from_init(cfg: &TrainConfig, init: &str, device: &Device) -> Result<Start> {
+        let path = Path::new(init);
+        if std::fs::symlink_metadata(path).is_err() {
+            return Err(Error::Usage(format!("init: {init}: no such model file or folder")));
+        }
+        let (mut net, mut arch) = load_model(path, device).map_err(|e| Error::Context { what: "init".into(), source: Box::new(e) })?;
+        if let (Arch::Unet { base }, Arch::BurstUnet { base: want }) = (arch, cfg.model) {
+            if base == want {
+                (net, arch) = (net.into_burst(device), cfg.model);
+            }
+        }
+        if arch != cfg.model {
+            return Err(Error::File {
+                path: path.to_path_buf(),
+                why: format!("(init) holds a {} model, the config's model is {}", arch.name(), cfg.model.name()),
+            });
+        }
+        let before = path.is_dir().then(|| read_history(&path.join("report.json"))).flatten().map(|h| Before {
+            model: init.to_string(),
+            steps: h.steps,
+            loss: h.loss,
+            validation: h.validation,
+        });
+        Ok(Start { model: net, optim: None, step: 0, history: Default::default(), before })
+    }
+
+    /// The checkpoint `latest.json` names in `dir`, with its parameter ids (the optimizer state
+    /// is keyed by them), its optimizer state and the run's history up to its step. The
+    /// schedule must be the run's own.
+    fn resumed(cfg: &TrainConfig, dir: &Path, device: &Device) -> Result<Start> {
+        let lp = dir.join("latest.json");
+        let (latest, mpath, op) =
+            Latest::read(dir)?.ok_or_else(|| Error::Io { path: lp, cause: std::io::Error::from(std::io::ErrorKind::NotFound) })?;
+        let (net, arch) = load_model(&mpath, device)?;
+        if arch != cfg.model {
+            return Err(Error::Usage(format!(
+                "{}: the run being resumed is a {} model and the config asks for {}: --resume continues the same network \
+                 (to start another from it, use --set init={:?} with a fresh output.dir)",
+                mpath.display(),
+                arch.name(),
+                cfg.model.name(),
+                dir.display().to_string()
+            )));
+        }
+        let bytes = crate::io::paths::read_regular(&mpath, crate::io::paths::MAX_MODEL_BYTES, "safetensors model file")?;
+        let ids: Vec<u64> =
+            read_meta(&bytes).ok().and_then(|m| m["param_ids"].as_str().and_then(|s| serde_json::from_str(s).ok())).ok_or_else(|| {
+                Error::File { path: mpath.to_path_buf(), why: "no param_ids in the metadata; cannot resume the optimizer".into() }
+            })?;
+        let model = net.map(&mut IdSetter { ids, next: 0 });
+        let optim = Some((op.clone(), std::fs::read(&op).map_err(|e| Error::Io { path: op, cause: e })?));
+        let step = latest.step;
+        let mut start = Start { model, optim, step, history: Default::default(), before: None };
+        // A run stopped before writing its report resumes without the history.
+        if let Some(mut h) = read_history(&dir.join("report.json")) {
+            if let Some(was) = h.config.as_ref().and_then(|c| c.get("optim")) {
+                schedule_unchanged(was, &cfg.optim, dir)?;
+            }
+            h.loss.retain(|p| p.step <= step);
+            h.validation.retain(|p| p.step <= step);
+            start.history = (h.loss, h.validation);
+            start.before = h.before;
+        }
+        Ok(start)
+    }
+}
+
+/// The engine that trains `model`: the fast CPU path or burn's autodiff, with the optimizer
+/// state of a resumed run (refused, with the reason, when it is another engine's or damaged).
+fn engine(cfg: &TrainConfig, device: Device, model: Net, optim: Option<(PathBuf, Vec<u8>)>) -> Result<Engine> {
+    if cfg.optim.engine == EngineKind::Fast {
+        let adam = match optim {
+            Some((path, b)) => Adam::from_bytes(&b).map_err(|e| {
+                // The hint fits the cause: a fast-engine file that is damaged, or another engine's.
+                let hint = if b.starts_with(br#"{"format":"pipeline-adam-1""#) {
+                    "the file is damaged or truncated; the checkpoints before it are whole files of their own"
+                } else {
+                    "a checkpoint of optim.engine = \"burn\" resumes with that engine"
+                };
+                Error::File { path: path.to_path_buf(), why: format!("{e} ({hint})") }
+            })?,
+            None => Adam::default(),
+        };
+        return Ok(Engine::Fast { net: Box::new(FastNet::from_net(&model)), adam, template: model });
+    }
+    let mut opt = AdamConfig::new().with_epsilon(cfg.optim.adam_epsilon as f32).init();
+    if let Some((path, b)) = optim {
+        opt = opt.from_bytes(burn::tensor::Bytes::from_bytes_vec(b)).map_err(|e| Error::File {
+            path: path.to_path_buf(),
+            why: format!("{e:?} (a checkpoint of optim.engine = \"fast\" resumes with that engine)"),
+        })?;
+    }
+    Ok(Engine::Burn { device, model, optim: opt, huber: HuberLossConfig::new(cfg.optim.huber_delta as f32).init() })
+}
+
 impl Trainer {
-    /// A fresh model (or the checkpoint in `output.dir` with `resume`).
+    /// A run of `cfg`: from fresh weights, from `init`'s, or (with `resume`) from the
+    /// checkpoint in `output.dir` ([`Start`]).
     ///
     /// # Errors
     /// Bad config values (all named), an unwritable output folder, an unreadable checkpoint.
@@ -41,151 +203,31 @@ impl Trainer {
         if !errs.is_empty() {
             return Err(Error::Config(errs));
         }
-        let dir = PathBuf::from(&cfg.output.dir);
-        if opts.resume {
-            if !dir.join("latest.json").exists() {
-                return Err(Error::Usage(format!(
-                    "{}: nothing to resume (no latest.json: no checkpoint was written there); train without --resume to start a run",
-                    dir.display()
-                )));
-            }
-        } else {
-            own_folder(&dir)?;
-        }
-        std::fs::create_dir_all(&dir).map_err(|e| Error::Io { path: dir.clone(), cause: e })?;
-        let lock = lock_run_folder(&dir)?;
-        // What a killed run of this folder left half-written (this machine, process gone).
-        for p in crate::io::remove_stale(&dir, 0) {
-            eprintln!("removed {} (left by a run that was killed)", p.display());
-        }
-        if !opts.resume {
-            fresh_run_folder(&dir, opts.overwrite)?;
-        }
+        let (dir, lock) = open_folder(cfg, opts)?;
         let fast = cfg.optim.engine == EngineKind::Fast;
         let device = if fast { Device::flex() } else { Device::flex().autodiff() };
-        // Initial weights are a function of the config's seed alone.
-        let mut model = Net::seeded(cfg.model, &device, hash(&[cfg.seed, hash_str("init")]));
-        if cfg.optim.zero_init {
-            model = model.zero_last_layer(&device);
-        }
-        let mut optim_bytes = None;
-        let mut start = 0;
-        let mut history: (Vec<LossPoint>, Vec<ValPoint>) = (Vec::new(), Vec::new());
-        let mut before = None;
-        // What an earlier report.json holds of its run.
-        #[derive(Deserialize)]
-        struct History {
-            steps: usize,
-            loss: Vec<LossPoint>,
-            validation: Vec<ValPoint>,
-            #[serde(default)]
-            before: Option<Before>,
-            config: Option<serde_json::Value>,
-        }
-        let read_history = |p: &Path| -> Option<History> { std::fs::read(p).ok().and_then(|b| serde_json::from_slice(&b).ok()) };
-        if let (Some(init), false) = (&cfg.init, opts.resume) {
-            let path = Path::new(init);
-            if std::fs::symlink_metadata(path).is_err() {
-                return Err(Error::Usage(format!("init: {init}: no such model file or folder")));
-            }
-            let (mut net, mut arch) = load_model(path, &device).map_err(|e| Error::Context { what: "init".into(), source: Box::new(e) })?;
-            // A burst U-Net starts from a single-frame U-Net of its width: the same weights, and
-            // a time conditioning at zero (at every time, what the U-Net gave).
-            if let (Arch::Unet { base }, Arch::BurstUnet { base: want }) = (arch, cfg.model) {
-                if base == want {
-                    (net, arch) = (net.into_burst(&device), cfg.model);
-                }
-            }
-            if arch != cfg.model {
-                return Err(Error::File {
-                    path: path.to_path_buf(),
-                    why: format!("(init) holds a {} model, the config's model is {}", arch.name(), cfg.model.name()),
-                });
-            }
-            model = net;
-            // A fine-tuning run is a run of its own (steps 1 to optim.steps, a fresh schedule
-            // peaking at optim.lr); the initial model's history is kept for the curves.
-            before = path.is_dir().then(|| read_history(&path.join("report.json"))).flatten().map(|h| Before {
-                model: init.clone(),
-                steps: h.steps,
-                loss: h.loss,
-                validation: h.validation,
-            });
-        }
-        if opts.resume {
-            let lp = dir.join("latest.json");
-            let (latest, mpath, op) =
-                Latest::read(&dir)?.ok_or_else(|| Error::Io { path: lp, cause: std::io::Error::from(std::io::ErrorKind::NotFound) })?;
-            let (net, arch) = load_model(&mpath, &device)?;
-            if arch != cfg.model {
-                return Err(Error::Usage(format!(
-                    "{}: the run being resumed is a {} model and the config asks for {}: --resume continues the same network \
-                     (to start another from it, use --set init={:?} with a fresh output.dir)",
-                    mpath.display(),
-                    arch.name(),
-                    cfg.model.name(),
-                    dir.display().to_string()
-                )));
-            }
-            let bytes = crate::io::paths::read_regular(&mpath, crate::io::paths::MAX_MODEL_BYTES, "safetensors model file")?;
-            let ids: Vec<u64> =
-                read_meta(&bytes).ok().and_then(|m| m["param_ids"].as_str().and_then(|s| serde_json::from_str(s).ok())).ok_or_else(
-                    || Error::File { path: mpath.to_path_buf(), why: "no param_ids in the metadata; cannot resume the optimizer".into() },
-                )?;
-            model = net.map(&mut IdSetter { ids, next: 0 });
-            optim_bytes = Some((op.clone(), std::fs::read(&op).map_err(|e| Error::Io { path: op, cause: e })?));
-            start = latest.step;
-            // A run stopped before writing its report resumes without the history.
-            if let Some(mut h) = read_history(&dir.join("report.json")) {
-                if let Some(was) = h.config.as_ref().and_then(|c| c.get("optim")) {
-                    schedule_unchanged(was, &cfg.optim, &dir)?;
-                }
-                h.loss.retain(|p| p.step <= start);
-                h.validation.retain(|p| p.step <= start);
-                history = (h.loss, h.validation);
-                before = h.before;
-            }
-        }
-        let engine = if fast {
-            let adam = match optim_bytes {
-                Some((path, b)) => Adam::from_bytes(&b).map_err(|e| {
-                    // The hint fits the cause: a fast-engine file that is damaged, or another engine's.
-                    let hint = if b.starts_with(br#"{"format":"pipeline-adam-1""#) {
-                        "the file is damaged or truncated; the checkpoints before it are whole files of their own"
-                    } else {
-                        "a checkpoint of optim.engine = \"burn\" resumes with that engine"
-                    };
-                    Error::File { path: path.to_path_buf(), why: format!("{e} ({hint})") }
-                })?,
-                None => Adam::default(),
-            };
-            Engine::Fast { net: Box::new(FastNet::from_net(&model)), adam, template: model }
-        } else {
-            let mut optim = AdamConfig::new().with_epsilon(cfg.optim.adam_epsilon as f32).init();
-            if let Some((path, b)) = optim_bytes {
-                optim = optim.from_bytes(burn::tensor::Bytes::from_bytes_vec(b)).map_err(|e| Error::File {
-                    path: path.to_path_buf(),
-                    why: format!("{e:?} (a checkpoint of optim.engine = \"fast\" resumes with that engine)"),
-                })?;
-            }
-            Engine::Burn { device, model, optim, huber: HuberLossConfig::new(cfg.optim.huber_delta as f32).init() }
+        let start = match (&cfg.init, opts.resume) {
+            (_, true) => Start::resumed(cfg, &dir, &device)?,
+            (Some(init), false) => Start::from_init(cfg, init, &device)?,
+            (None, false) => Start::fresh(cfg, &device),
         };
+        let engine = engine(cfg, device, start.model, start.optim)?;
         let end = opts.stop_after.unwrap_or(cfg.optim.steps).min(cfg.optim.steps);
-        let bar = crate::progress::Bar::from(opts.progress, "train", "steps", start as u64, Some(end as u64));
+        let bar = crate::progress::Bar::from(opts.progress, "train", "steps", start.step as u64, Some(end as u64));
         Ok(Trainer {
             cfg: cfg.clone(),
             dir,
             engine,
-            step: start,
-            start,
-            before,
+            step: start.step,
+            start: start.step,
+            before: start.before,
             interrupted: false,
             end,
             val: Vec::new(),
             train_inputs: Default::default(),
             val_inputs: Default::default(),
-            losses: history.0,
-            vals: history.1,
+            losses: start.history.0,
+            vals: start.history.1,
             recent: Default::default(),
             averaged: None,
             t0: Instant::now(),
