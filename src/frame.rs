@@ -347,6 +347,8 @@ pub struct Sample {
     pub cropped: bool,
     /// The middle frame's motion label ([`Frame::motion`]).
     pub motion: Option<Arc<str>>,
+    /// What the capture stage drew (the `sensor` stage's ISO and constants), as JSON.
+    pub capture: Option<Arc<str>>,
     /// The times of the burst targets ([`Pair::burst`]) as fractions of the exposure, in (0, 1):
     /// `(k + 0.5) / K`; empty without a burst.
     pub times: Vec<f64>,

@@ -29,6 +29,9 @@ struct SampleMeta<'a> {
     patch: Option<PatchMeta>,
     #[serde(skip_serializing_if = "Option::is_none")]
     motion: Option<serde_json::Value>,
+    /// The `sensor` stage's draws and constants.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    capture: Option<serde_json::Value>,
     /// Burst samples: the times of `gt.00.png`, `gt.01.png`, ... as fractions of the exposure.
     #[serde(skip_serializing_if = "<[f64]>::is_empty")]
     times: &'a [f64],
@@ -63,6 +66,7 @@ pub fn meta_json(s: &Sample, p: &Pair) -> Vec<u8> {
         frame_size: [s.frame_width, s.frame_height],
         patch: p.patch.map(|index| PatchMeta { index, x: p.x, y: p.y, w: p.w, h: p.h }),
         motion: s.motion.as_deref().and_then(|m| serde_json::from_str(m).ok()),
+        capture: s.capture.as_deref().and_then(|m| serde_json::from_str(m).ok()),
         times: if p.burst.is_empty() { &[] } else { &s.times },
     };
     serde_json::to_vec(&m).expect("json")

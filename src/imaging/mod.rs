@@ -7,6 +7,7 @@
 
 pub mod blur;
 pub mod noise;
+pub mod sensor;
 pub mod truth;
 
 use crate::optics::transfer::{Curve, Encoder};

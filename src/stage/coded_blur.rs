@@ -261,6 +261,7 @@ impl CodedBlur {
             frame_height: h,
             cropped: self.crop_first.is_some(),
             motion: mid.motion.clone(),
+            capture: None,
             times: self.times.clone(),
             pairs,
         };

@@ -15,6 +15,7 @@ pub mod linearize;
 pub mod noise;
 pub mod patches;
 pub mod scene;
+pub mod sensor;
 pub mod shards;
 pub mod stills;
 #[cfg(feature = "train")]
@@ -125,6 +126,7 @@ registry! {
     Linearize(linearize::LinearizeConfig),
     CodedBlur(coded_blur::BlurConfig),
     Noise(noise::NoiseConfig),
+    Sensor(sensor::SensorConfig),
     Patches(patches::PatchesConfig),
     Shards(shards::ShardsConfig),
     Frames(frames::FramesConfig),

@@ -356,3 +356,45 @@ fn stills_motion_is_drawn_per_window_and_recorded_in_key_json() {
     }
     assert!(kinds.len() >= 4, "27 windows drew only {kinds:?}");
 }
+
+#[test]
+fn the_realistic_capture_chain_is_seeded_recorded_and_noisier_at_high_iso() {
+    let cfg = concat!(env!("CARGO_MANIFEST_DIR"), "/pipelines/realistic.toml");
+    let run_with = |name: &str, sets: &[&str]| {
+        let out = scratch(name);
+        let mut args = vec!["generate", FIXTURE, "-o", out.to_str().unwrap(), "--config", cfg, "--progress", "never"];
+        for s in sets {
+            args.extend(["--set", s]);
+        }
+        args.extend(["--set", "sources.video.max_frames=27"]);
+        let o = run(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        shard_members(&out)
+    };
+    let a = run_with("realistic_a", &[]);
+    let b = run_with("realistic_b", &[]);
+    assert_eq!(a, b, "the same seed gives the same bytes");
+    let json: serde_json::Value = serde_json::from_slice(&a.iter().find(|(n, _)| n.ends_with(".json")).unwrap().1).unwrap();
+    let s = &json["capture"]["sensor"];
+    assert_eq!(s["bayer"], "rggb");
+    assert!((100.0..=1600.0).contains(&s["iso"].as_f64().unwrap()), "{s}");
+    // The same patches (a grid: not drawn from the seed) at ISO 100 with two seeds and at ISO
+    // 3200: two low-ISO draws differ by their noise, far less than the high-ISO one does.
+    let lq = |m: &[(String, Vec<u8>)]| image_rgb(&m.iter().find(|(n, _)| n.ends_with(".lq.png")).unwrap().1);
+    let mse = |a: &[u8], b: &[u8]| a.iter().zip(b).map(|(x, y)| (f64::from(*x) - f64::from(*y)).powi(2)).sum::<f64>() / a.len() as f64;
+    let grid = "transforms.patches.placement=grid";
+    let low = lq(&run_with("realistic_low", &[grid, "transforms.sensor.iso=[100.0, 100.0]"]));
+    let low2 = lq(&run_with("realistic_low2", &[grid, "transforms.sensor.iso=[100.0, 100.0]", "seed=5"]));
+    let high = lq(&run_with("realistic_high", &[grid, "transforms.sensor.iso=[3200.0, 3200.0]"]));
+    assert!(mse(&low, &low2) > 0.0, "the seed draws the noise");
+    assert!(mse(&high, &low) > 4.0 * mse(&low, &low2), "{} vs {}", mse(&high, &low), mse(&low, &low2));
+}
+
+/// The RGB bytes of a PNG.
+fn image_rgb(png: &[u8]) -> Vec<u8> {
+    let mut d = png::Decoder::new(std::io::Cursor::new(png)).read_info().unwrap();
+    let mut buf = vec![0; d.output_buffer_size().unwrap()];
+    let info = d.next_frame(&mut buf).unwrap();
+    buf.truncate(info.buffer_size());
+    buf
+}
