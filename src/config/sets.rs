@@ -31,8 +31,8 @@ pub fn apply_sets(table: &mut toml::Table, sets: &[String]) -> Result<(), String
             Err(_) => toml::Value::String(value.to_string()),
         };
         let keys: Vec<&str> = path.trim().split('.').collect();
-        // Bare TOML keys only: `trans forms.x` used to become a new top-level key that the
-        // unknown-key check then blamed on the settings file.
+        // Bare TOML keys only: `trans forms.x` would otherwise become a new top-level key, which
+        // the unknown-key check would then blame on the settings file.
         if let Some(k) = keys.iter().find(|k| k.is_empty() || !k.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')) {
             return Err(format!("--set {s:?}: {k:?} is not a key (keys are letters, digits, _ and -, joined by dots)"));
         }
