@@ -179,6 +179,7 @@ inputs = ["blur"]
     }
 
     #[test]
+    #[cfg(feature = "ffmpeg")] // generate.toml reads video (`decode`)
     fn type_errors_and_unknown_keys_all_come_in_one_pass_with_their_full_keys_and_origins() {
         let text = include_str!("../../pipelines/generate.toml").replace("per_window = 8", "per_window = \"eight\"");
         let sets = vec!["transforms.blur.window=\"x\"".to_string(), "sinks.shards.colour=1".to_string()];

@@ -418,8 +418,13 @@ mod tests {
             include_str!("../../pipelines/frames.toml"),
         ] {
             let t: toml::Table = toml::from_str(text).unwrap();
+            // The kinds this build leaves out (`decode` without FFmpeg, `trainer` without burn).
+            let built = |ty: &str| (ty != "decode" || cfg!(feature = "ffmpeg")) && (ty != "trainer" || cfg!(feature = "train"));
             for section in ["sources", "transforms", "sinks"] {
                 for (_, v) in t[section].as_table().unwrap() {
+                    if !built(v["type"].as_str().unwrap()) {
+                        continue;
+                    }
                     let kind: super::StageKind = v.clone().try_into().unwrap();
                     assert_eq!(kind.type_name(), v["type"].as_str().unwrap());
                 }
