@@ -233,7 +233,8 @@ impl Row<'_> {
         }
         // Clip, scale, round; the three channels' 16 bytes side by side in one vector, then
         // interleaved (r g b r g b ...) by one permute and stored as 48 bytes.
-        let interleave = _mm512_loadu_si512(INTERLEAVE.as_ptr().cast());
+        // SAFETY: INTERLEAVE holds the 64 bytes read; AVX-512 is this function's contract.
+        let interleave = unsafe { _mm512_loadu_si512(INTERLEAVE.as_ptr().cast()) };
         let (scale, half) = (_mm512_set1_ps(255.0), _mm512_set1_ps(0.5));
         for i in (0..whole).step_by(16) {
             let q: [__m128i; 3] = std::array::from_fn(|c| {

@@ -171,16 +171,19 @@ unsafe fn rgb_row_avx2(k: &[f32; 4], lum: &[u8], u: &[f32], v: &[f32], o: &mut [
         let mut q = [_mm256_setzero_si256(); 4];
         for (j, q) in q.iter_mut().enumerate() {
             let at = x + 8 * j;
-            // SAFETY (loads and the store): at + 8 <= x + 32 <= n, within every slice.
-            let l = _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_loadl_epi64(lum.as_ptr().add(at).cast())));
-            let (uu, vv) = (_mm256_loadu_ps(u.as_ptr().add(at)), _mm256_loadu_ps(v.as_ptr().add(at)));
+            // SAFETY: at + 8 <= x + 32 <= n, within every slice.
+            let (l, uu, vv) = unsafe {
+                let l = _mm256_cvtepi32_ps(_mm256_cvtepu8_epi32(_mm_loadl_epi64(lum.as_ptr().add(at).cast())));
+                (l, _mm256_loadu_ps(u.as_ptr().add(at)), _mm256_loadu_ps(v.as_ptr().add(at)))
+            };
             let s = _mm256_add_ps(_mm256_add_ps(_mm256_add_ps(_mm256_mul_ps(k0, l), _mm256_mul_ps(k1, uu)), _mm256_mul_ps(k2, vv)), k3);
             *q = _mm256_cvttps_epi32(_mm256_min_ps(_mm256_max_ps(s, lo), hi));
         }
         // Packs work per 128-bit lane: the bytes come out as 4-pixel groups
         // (q0 q1 q2 q3 low halves | high halves); the permute puts them back in order.
         let p = _mm256_packus_epi16(_mm256_packs_epi32(q[0], q[1]), _mm256_packs_epi32(q[2], q[3]));
-        _mm256_storeu_si256(o.as_mut_ptr().add(x).cast(), _mm256_permutevar8x32_epi32(p, order));
+        // SAFETY: x + 32 <= n <= o.len().
+        unsafe { _mm256_storeu_si256(o.as_mut_ptr().add(x).cast(), _mm256_permutevar8x32_epi32(p, order)) };
         x += 32;
     }
     x

@@ -458,21 +458,26 @@ fn columns_to_rows(spec: &[Complex32], strip: &mut [Complex32], wc: usize, hp: u
 #[target_feature(enable = "avx2")]
 unsafe fn blocks_4x4<const TO_COLUMNS: bool>(strip: *mut Complex32, cols: *mut Complex32, wc: usize, hp: usize, y0: usize) -> usize {
     use std::arch::x86_64::{__m256d, _mm256_loadu_pd, _mm256_permute2f128_pd, _mm256_storeu_pd, _mm256_unpackhi_pd, _mm256_unpacklo_pd};
+    /// # Safety
+    /// AVX2 (called from `blocks_4x4` only).
     #[inline(always)]
     unsafe fn transpose(r: [__m256d; 4]) -> [__m256d; 4] {
-        let (t0, t1) = (_mm256_unpacklo_pd(r[0], r[1]), _mm256_unpackhi_pd(r[0], r[1]));
-        let (t2, t3) = (_mm256_unpacklo_pd(r[2], r[3]), _mm256_unpackhi_pd(r[2], r[3]));
-        [
-            _mm256_permute2f128_pd::<0x20>(t0, t2),
-            _mm256_permute2f128_pd::<0x20>(t1, t3),
-            _mm256_permute2f128_pd::<0x31>(t0, t2),
-            _mm256_permute2f128_pd::<0x31>(t1, t3),
-        ]
+        // SAFETY: AVX2 is enabled in the only caller; register operations only.
+        unsafe {
+            let (t0, t1) = (_mm256_unpacklo_pd(r[0], r[1]), _mm256_unpackhi_pd(r[0], r[1]));
+            let (t2, t3) = (_mm256_unpacklo_pd(r[2], r[3]), _mm256_unpackhi_pd(r[2], r[3]));
+            [
+                _mm256_permute2f128_pd::<0x20>(t0, t2),
+                _mm256_permute2f128_pd::<0x20>(t1, t3),
+                _mm256_permute2f128_pd::<0x31>(t0, t2),
+                _mm256_permute2f128_pd::<0x31>(t1, t3),
+            ]
+        }
     }
     let end = wc / 4 * 4;
     for j in (0..end).step_by(4) {
         for ib in [0, 4] {
-            // SAFETY (block): rows ib..ib + 4 < 8 of the strip, columns j..j + 4 <= wc, and
+            // SAFETY: (block) rows ib..ib + 4 < 8 of the strip, columns j..j + 4 <= wc, and
             // entries y0 + ib..y0 + ib + 4 <= hp of each column, per the function's contract.
             unsafe {
                 let row = |k: usize| strip.add((ib + k) * wc + j).cast::<f64>();

@@ -351,7 +351,7 @@ unsafe fn combine_rows_avx2(a: &[f32], rows: &[f32], ew: usize, outs: &mut [&mut
     let mut r0 = 0;
     while r0 < ranks {
         let nr = (ranks - r0).min(8);
-        // SAFETY (all arms): AVX2 is enabled here; `combine_block` reads `rows` and writes
+        // SAFETY: (all arms) AVX2 is enabled here; `combine_block` reads `rows` and writes
         // `outs` within `ew` columns only.
         unsafe {
             match nr {

@@ -36,32 +36,36 @@ pub(super) unsafe fn mm(
     if k == 0 {
         if !acc {
             for i in 0..m {
-                std::ptr::write_bytes(dst.add(i * dst_rs), 0, n);
+                // SAFETY: row i's n values are inside `dst` (this function's contract).
+                unsafe { std::ptr::write_bytes(dst.add(i * dst_rs), 0, n) };
             }
         }
         return;
     }
-    gemm::gemm(
-        m,
-        n,
-        k,
-        dst,
-        1,
-        dst_rs as isize,
-        acc,
-        a,
-        a_cs as isize,
-        a_rs as isize,
-        b,
-        b_cs as isize,
-        b_rs as isize,
-        1.0f32,
-        1.0f32,
-        false,
-        false,
-        false,
-        gemm::Parallelism::None,
-    )
+    // SAFETY: every index the strides reach is inside the buffers (this function's contract).
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            dst,
+            1,
+            dst_rs as isize,
+            acc,
+            a,
+            a_cs as isize,
+            a_rs as isize,
+            b,
+            b_cs as isize,
+            b_rs as isize,
+            1.0f32,
+            1.0f32,
+            false,
+            false,
+            false,
+            gemm::Parallelism::None,
+        )
+    }
 }
 
 /// [`mm`] on slices, the reach of every stride checked first: `dst[m x n] (row stride dst_rs) =
@@ -340,7 +344,7 @@ pub fn conv_forward(x: &T4, weight: &[f32], bias: Option<&[f32]>, cout: usize, k
             }
         }
     };
-    // SAFETY (`by_units`' contract): the units cover every sample, every row 0..h and every
+    // SAFETY: (`by_units`' contract) the units cover every sample, every row 0..h and every
     // channel 0..cout, and `mm` without `acc` writes all of a unit's values (gemm does not read
     // dst then).
     let d = unsafe { by_units(n * cout * hw, [n, nb, nc], unit) };

@@ -121,14 +121,14 @@ pub fn conv3x3(x: &T4, u: &[f32], bias: Option<&[f32]>, cout: usize, post: Optio
                 mm(m, t, cin, prod.as_mut_ptr().add(xi * m * t), t, false, a, cin, 1, b, t, 1);
             }
         }
-        // SAFETY (of `transform_outputs`' contract): this unit writes rows 2 b0 .. 2 b1
+        // SAFETY: (of `transform_outputs`' contract) this unit writes rows 2 b0 .. 2 b1
         // (within h) of channels c0..c1 of sample s, inside the buffer; no other unit
         // writes or reads them.
         let out = Ptr(unsafe { yp.0.add((s * cout + c0) * hw) });
         transform_outputs(prod, (m, t), (h, w), (b0, b1), bias.map(|b| &b[c0..c1]), post.map(|p| (p, c0)), out);
         BUFS.with(|c| c.set(bufs));
     };
-    // SAFETY (`by_units`' contract): the units cover every sample, block row and output
+    // SAFETY: (`by_units`' contract) the units cover every sample, block row and output
     // channel, and `transform_outputs` writes every value of its rows.
     let d = unsafe { by_units(n * cout * hw, [n, nb, nc], unit) };
     T4 { n, c: cout, h, w, d }
