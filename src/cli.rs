@@ -128,7 +128,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Train(a) => commands::train::command(a),
         #[cfg(not(feature = "train"))]
         Command::Train { .. } => Err(crate::Error::Usage(
-            "this pipeline was built without training (burn, about two thirds of the dependencies, is the `train` feature): \
+            "this pipeline was built without training (burn, half the dependencies and two thirds of the build time, is the `train` feature): \
              cargo build --release --features train, then target/release/pipeline train ..."
                 .into(),
         )
