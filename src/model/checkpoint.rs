@@ -79,16 +79,8 @@ pub fn save_model(path: &Path, model: &Net, arch: &Arch, seed: u64, step: usize)
 /// # Errors
 /// A missing or truncated file, or weights of another architecture (named).
 pub fn load_model(path: &Path, device: &Device) -> Result<(Net, Arch)> {
-    // A folder stands for the model file `model_in` picks.
-    let file;
-    let path = if path.is_dir() {
-        file = model_in(path)?;
-        file.as_path()
-    } else {
-        path
-    };
-    let bytes = crate::io::paths::read_regular(path, crate::io::paths::MAX_MODEL_BYTES, "safetensors model file")?;
-    load_model_bytes(&bytes, &path.display().to_string(), device)
+    let (bytes, name) = crate::model::weights::read_model_file(path)?;
+    load_model_bytes(&bytes, &name, device)
 }
 
 /// As [`load_model`], from the bytes of a model file; `name` names it in errors.

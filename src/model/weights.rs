@@ -164,15 +164,8 @@ impl Weights {
     /// # Errors
     /// As [`Weights::from_bytes`]; an unreadable file.
     pub fn read(path: &Path) -> Result<Weights> {
-        let file;
-        let path = if path.is_dir() {
-            file = model_in(path)?;
-            file.as_path()
-        } else {
-            path
-        };
-        let bytes = crate::io::paths::read_regular(path, crate::io::paths::MAX_MODEL_BYTES, "safetensors model file")?;
-        Weights::from_bytes(&bytes, &path.display().to_string())
+        let (bytes, name) = read_model_file(path)?;
+        Weights::from_bytes(&bytes, &name)
     }
 
     /// The weights of a model file's bytes; `name` names it in errors.
@@ -277,6 +270,17 @@ impl Latest {
         let optimizer = crate::io::paths::inside(dir, &latest.optimizer, &lp, "optimizer")?;
         Ok(Some((latest, model, optimizer)))
     }
+}
+
+/// The bytes of a model file, or of the file a model folder stands for ([`model_in`]), with its
+/// path for error messages; a regular file within the size bound only.
+///
+/// # Errors
+/// An unreadable or oversized file, a malformed `latest.json`.
+pub fn read_model_file(path: &Path) -> Result<(Vec<u8>, String)> {
+    let file = if path.is_dir() { model_in(path)? } else { path.to_path_buf() };
+    let bytes = crate::io::paths::read_regular(&file, crate::io::paths::MAX_MODEL_BYTES, "safetensors model file")?;
+    Ok((bytes, file.display().to_string()))
 }
 
 /// The model file a folder stands for: its `model.safetensors` (a shipped model, or the
