@@ -16,6 +16,10 @@ pub enum Error {
     /// that does not parse or does not fit), named, with why.
     #[error("{}: {why}", path.display())]
     File { path: PathBuf, why: String },
+    /// A file one of the format readers refused (PNG, tar, `.npy`, safetensors, JSON), named;
+    /// the reader's own error is kept, typed, in `cause` and is part of the message (as in `Io`).
+    #[error("{}: {cause}", path.display())]
+    Format { path: PathBuf, cause: FormatError },
     /// A stage of a pipeline failed; the cause is kept (and printed after it).
     #[error("stage {stage}")]
     Stage { stage: String, source: Box<Error> },
@@ -65,6 +69,25 @@ pub enum Error {
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;
 
+/// What a format reader said about a file's bytes: one variant per reader, each its own typed
+/// error (match on it to tell a truncated shard from a damaged one, say).
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum FormatError {
+    #[error("{0}")]
+    Png(#[from] crate::io::png::PngError),
+    #[error("{0}")]
+    Tar(#[from] crate::io::tar::TarError),
+    #[error("{0}")]
+    Npy(#[from] crate::io::npy::NpyError),
+    #[error("{0}")]
+    Weights(#[from] crate::model::weights::WeightsError),
+    #[error("{0}")]
+    Json(#[from] serde_json::Error),
+    #[error("{0}")]
+    Toml(#[from] toml::de::Error),
+}
+
 impl Error {
     /// The message with its causes, one line (`stage shards: manifest.json: No space left`), for
     /// reports that keep text.
@@ -76,6 +99,11 @@ impl Error {
             cause = c.source();
         }
         text
+    }
+
+    /// A format reader's error, naming its file: `.map_err(Error::format(path))`.
+    pub fn format<E: Into<FormatError>>(path: &std::path::Path) -> impl FnOnce(E) -> Error + '_ {
+        move |e| Error::Format { path: path.to_path_buf(), cause: e.into() }
     }
 
     /// A video error, naming its file.

@@ -21,27 +21,54 @@ pub fn write_f32(w: &mut dyn Write, shape: &[usize], data: &[f32]) -> std::io::R
     Ok(())
 }
 
+/// Why bytes were not read as a float32 `.npy` array.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum NpyError {
+    #[error("not an .npy file (no \\x93NUMPY magic)")]
+    NotNpy,
+    #[error("truncated .npy header")]
+    TruncatedHeader,
+    #[error("unsupported .npy array {header}: only little-endian float32 ('<f4') in C order is read")]
+    Unsupported { header: String },
+    #[error("the .npy header has no readable shape: {header}")]
+    Shape { header: String },
+    #[error("{values} float32 values for shape {shape:?}")]
+    Count { values: usize, shape: Vec<usize> },
+}
+
 /// Reads a float32 `.npy` written by [`write_f32`] (or NumPy): shape and data.
-pub fn read_f32(bytes: &[u8]) -> Result<(Vec<usize>, Vec<f32>), String> {
+///
+/// # Errors
+/// Not `.npy`, another dtype or Fortran order, or a shape that does not fit the data.
+pub fn read_f32(bytes: &[u8]) -> Result<(Vec<usize>, Vec<f32>), NpyError> {
     if bytes.len() < 10 || &bytes[..6] != b"\x93NUMPY" {
-        return Err("not an .npy file".into());
+        return Err(NpyError::NotNpy);
     }
-    let hlen = u16::from_le_bytes([bytes[8], bytes[9]]) as usize;
-    let header = std::str::from_utf8(bytes.get(10..10 + hlen).ok_or("truncated header")?).map_err(|e| e.to_string())?;
+    // Version 1.0 has a 2-byte header length; 2.0 and 3.0 a 4-byte one.
+    let (hlen, start): (usize, usize) = match bytes[6] {
+        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
+        _ if bytes.len() >= 12 => (u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize, 12),
+        _ => return Err(NpyError::TruncatedHeader),
+    };
+    let header = bytes.get(start..start.saturating_add(hlen)).and_then(|h| std::str::from_utf8(h).ok()).ok_or(NpyError::TruncatedHeader)?;
+    let header_text = || header.trim().to_string();
     if !header.contains("'<f4'") || header.contains("'fortran_order': True") {
-        return Err(format!("unsupported npy header {header}"));
+        return Err(NpyError::Unsupported { header: header_text() });
     }
-    let s = header.split("'shape': (").nth(1).and_then(|s| s.split(')').next()).ok_or("no shape")?;
-    let shape: Vec<usize> = s
+    let dims =
+        header.split("'shape': (").nth(1).and_then(|s| s.split(')').next()).ok_or_else(|| NpyError::Shape { header: header_text() })?;
+    let shape: Vec<usize> = dims
         .split(',')
         .filter(|t| !t.trim().is_empty())
-        .map(|t| t.trim().parse().map_err(|_| format!("bad dim {t}")))
+        .map(|t| t.trim().parse().map_err(|_| NpyError::Shape { header: header_text() }))
         .collect::<Result<_, _>>()?;
-    let data: Vec<f32> = bytes[10 + hlen..].chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
-    if data.len() != shape.iter().product::<usize>() {
-        return Err(format!("{} values for shape {shape:?}", data.len()));
+    let body = &bytes[start + hlen..];
+    let want = shape.iter().try_fold(1usize, |a, &d| a.checked_mul(d));
+    if body.len() % 4 != 0 || want != Some(body.len() / 4) {
+        return Err(NpyError::Count { values: body.len() / 4, shape });
     }
-    Ok((shape, data))
+    Ok((shape, body.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()))
 }
 
 #[cfg(test)]
@@ -56,5 +83,18 @@ mod tests {
         let (shape, back) = super::read_f32(&buf).unwrap();
         assert_eq!(shape, vec![2, 3, 4]);
         assert_eq!(back, data);
+    }
+
+    #[test]
+    fn other_arrays_are_refused_with_the_reason() {
+        use super::NpyError;
+        let mut buf = Vec::new();
+        super::write_f32(&mut buf, &[2, 3], &[0.0; 6]).unwrap();
+        assert_eq!(super::read_f32(&buf[..buf.len() - 4]).unwrap_err(), NpyError::Count { values: 5, shape: vec![2, 3] });
+        assert_eq!(super::read_f32(b"PK\x03\x04 not npy").unwrap_err(), NpyError::NotNpy);
+        let mut f8 = buf.clone();
+        let at = f8.windows(3).position(|w| w == b"<f4").unwrap();
+        f8[at + 2] = b'8';
+        assert!(matches!(super::read_f32(&f8).unwrap_err(), NpyError::Unsupported { .. }));
     }
 }

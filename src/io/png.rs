@@ -5,6 +5,16 @@ use std::io::Write;
 /// The largest image (pixels) read: 16384 x 16384, a 16K frame (3 GiB as 32-bit float RGB).
 pub const MAX_PIXELS: u64 = 16384 * 16384;
 
+/// Why PNG bytes were not read; the `png` crate's error is kept as the source.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum PngError {
+    #[error("not a readable PNG ({0})")]
+    Decode(#[source] png::DecodingError),
+    #[error("declares {width}x{height} pixels, more than the {MAX_PIXELS} this tool reads")]
+    TooLarge { width: u64, height: u64 },
+}
+
 /// Writes interleaved 8-bit RGB.
 pub fn write_rgb8(w: &mut dyn Write, width: usize, height: usize, rgb: &[u8]) -> std::io::Result<()> {
     assert_eq!(rgb.len(), width * height * 3);
@@ -19,7 +29,7 @@ pub fn write_rgb8(w: &mut dyn Write, width: usize, height: usize, rgb: &[u8]) ->
 
 /// Reads a PNG into interleaved 8-bit RGB: (width, height, data). Grey is converted, alpha
 /// dropped; 16-bit samples are rounded to 8 bits.
-pub fn read_rgb8(bytes: &[u8]) -> Result<(usize, usize, Vec<u8>), String> {
+pub fn read_rgb8(bytes: &[u8]) -> Result<(usize, usize, Vec<u8>), PngError> {
     let (w, h, color, px) = decode(bytes)?;
     let rgb = match color {
         png::ColorType::Rgb => px,
@@ -31,7 +41,7 @@ pub fn read_rgb8(bytes: &[u8]) -> Result<(usize, usize, Vec<u8>), String> {
 }
 
 /// Reads a PNG into interleaved 8-bit RGBA (opaque where the file has no alpha).
-pub fn read_rgba8(bytes: &[u8]) -> Result<(usize, usize, Vec<u8>), String> {
+pub fn read_rgba8(bytes: &[u8]) -> Result<(usize, usize, Vec<u8>), PngError> {
     let (w, h, color, px) = decode(bytes)?;
     let rgba = match color {
         png::ColorType::Rgb => px.chunks_exact(3).flat_map(|p| [p[0], p[1], p[2], 255]).collect(),
@@ -45,7 +55,7 @@ pub fn read_rgba8(bytes: &[u8]) -> Result<(usize, usize, Vec<u8>), String> {
 /// Decodes a PNG to 8-bit samples of its own colour type (palettes expanded; grey, grey + alpha,
 /// RGB or RGBA). Files that declare more than [`MAX_PIXELS`] pixels are refused before anything
 /// is allocated for them.
-fn decode(bytes: &[u8]) -> Result<(usize, usize, png::ColorType, Vec<u8>), String> {
+fn decode(bytes: &[u8]) -> Result<(usize, usize, png::ColorType, Vec<u8>), PngError> {
     decode_as(bytes, png::Transformations::EXPAND | png::Transformations::STRIP_16)
 }
 
@@ -88,12 +98,12 @@ impl Samples {
 }
 
 /// Reads a PNG keeping its layout and depth ([`Samples`]); the same size limit as [`read_rgb8`].
-pub fn read_samples(bytes: &[u8]) -> Result<Samples, String> {
+pub fn read_samples(bytes: &[u8]) -> Result<Samples, PngError> {
     let (width, height, color, data) = decode_as(bytes, png::Transformations::EXPAND)?;
     let channels = color.samples();
     let sixteen = data.len() == width * height * channels * 2;
     let expanded = {
-        let r = png::Decoder::new(std::io::Cursor::new(bytes)).read_info().map_err(|e| e.to_string())?;
+        let r = png::Decoder::new(std::io::Cursor::new(bytes)).read_info().map_err(PngError::Decode)?;
         match (r.info().color_type, r.info().bit_depth as u8) {
             (png::ColorType::Indexed, _) => Some("palette written as RGB".to_string()),
             (_, d) if d < 8 => Some(format!("{d}-bit samples written as 8 bits")),
@@ -116,20 +126,20 @@ pub fn write_samples(w: &mut dyn Write, s: &Samples) -> std::io::Result<()> {
     wr.finish().map_err(std::io::Error::other)
 }
 
-fn decode_as(bytes: &[u8], transformations: png::Transformations) -> Result<(usize, usize, png::ColorType, Vec<u8>), String> {
+fn decode_as(bytes: &[u8], transformations: png::Transformations) -> Result<(usize, usize, png::ColorType, Vec<u8>), PngError> {
     let mut dec = png::Decoder::new(std::io::Cursor::new(bytes));
     dec.set_transformations(transformations);
-    let mut r = dec.read_info().map_err(|e| e.to_string())?;
-    let (dw, dh) = (r.info().width as u64, r.info().height as u64);
-    if dw * dh > MAX_PIXELS {
-        return Err(format!("declares {dw}x{dh} pixels, more than the {MAX_PIXELS} this tool reads"));
+    let mut r = dec.read_info().map_err(PngError::Decode)?;
+    let (width, height) = (r.info().width as u64, r.info().height as u64);
+    let too_large = PngError::TooLarge { width, height };
+    if width * height > MAX_PIXELS {
+        return Err(too_large);
     }
-    let mut buf = vec![0; r.output_buffer_size().ok_or("png too large")?];
-    let info = r.next_frame(&mut buf).map_err(|e| e.to_string())?;
+    let mut buf = vec![0; r.output_buffer_size().ok_or(too_large)?];
+    let info = r.next_frame(&mut buf).map_err(PngError::Decode)?;
     buf.truncate(info.buffer_size());
-    if info.color_type == png::ColorType::Indexed {
-        return Err("indexed png not expanded".into());
-    }
+    // EXPAND turns a palette into RGB or RGBA; the match arms of the readers rely on it.
+    assert_ne!(info.color_type, png::ColorType::Indexed, "png::Transformations::EXPAND leaves no palette");
     Ok((info.width as usize, info.height as usize, info.color_type, buf))
 }
 

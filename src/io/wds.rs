@@ -85,14 +85,16 @@ impl RawPair {
     pub fn decode(self, shard: &Path, want: Option<(usize, usize)>) -> Result<Pair> {
         let RawPair { key, source, lq, gt, burst, times } = self;
         let bad = |what: String| Error::File { path: shard.to_path_buf(), why: format!("sample {key}: {what}") };
-        let (w, h, lq) = png_io::read_rgb8(&lq).map_err(|e| bad(format!("lq.png is not a readable PNG ({e})")))?;
-        let (gw, gh, gt) = png_io::read_rgb8(&gt).map_err(|e| bad(format!("gt.png is not a readable PNG ({e})")))?;
+        // A member's errors name it as a path inside the shard: `shard.tar/key.lq.png`.
+        let png = |member: &str, bytes: &[u8]| png_io::read_rgb8(bytes).map_err(Error::format(&shard.join(format!("{key}.{member}"))));
+        let (w, h, lq) = png("lq.png", &lq)?;
+        let (gw, gh, gt) = png("gt.png", &gt)?;
         let (w, h) = same_size((w, h), (gw, gh), want).map_err(bad)?;
         let burst = burst
             .iter()
             .enumerate()
             .map(|(k, b)| {
-                let (bw, bh, v) = png_io::read_rgb8(b).map_err(|e| bad(format!("{} is not a readable PNG ({e})", burst_member(k))))?;
+                let (bw, bh, v) = png(&burst_member(k), b)?;
                 same_size((w, h), (bw, bh), None).map_err(&bad)?;
                 Ok(v)
             })
@@ -146,7 +148,7 @@ pub fn read_shard(path: &Path, want: Option<(usize, usize)>) -> Result<Vec<Pair>
 /// See above.
 pub fn read_shard_raw(path: &Path) -> Result<Vec<RawPair>> {
     let f = std::fs::File::open(path).map_err(|e| Error::Io { path: path.to_path_buf(), cause: e })?;
-    let members = tar::read_all(std::io::BufReader::new(f)).map_err(|e| Error::File { path: path.to_path_buf(), why: e.to_string() })?;
+    let members = tar::read_all(std::io::BufReader::new(f)).map_err(Error::format(path))?;
     let mut out: Vec<RawPair> = Vec::new();
     let bad = |key: &str, what: String| Error::File { path: path.to_path_buf(), why: format!("sample {key}: {what}") };
     let mut cur: Option<Members> = None;
@@ -163,7 +165,7 @@ pub fn read_shard_raw(path: &Path) -> Result<Vec<RawPair>> {
             "lq.png" => c.lq = Some(bytes),
             "gt.png" => c.gt = Some(bytes),
             "json" => {
-                let v: serde_json::Value = serde_json::from_slice(&bytes).map_err(|e| bad(key, format!("json is not valid ({e})")))?;
+                let v: serde_json::Value = serde_json::from_slice(&bytes).map_err(Error::format(&path.join(&name)))?;
                 c.source = Some(v["input"].as_str().map(hash_str).or(v["input_index"].as_u64()).unwrap_or(0));
                 if let Some(t) = v.get("times") {
                     let t: Vec<f32> =

@@ -92,7 +92,7 @@ pub fn load_model_bytes(bytes: &[u8], name: &str, device: &Device) -> Result<(Ne
     // (exported, or fine-tuned in PyTorch) is renamed, first.
     let bytes = crate::model::torch::canonical(bytes, name)?;
     let path = Path::new(name);
-    let arch = read_arch(&bytes).map_err(|e| Error::File { path: path.to_path_buf(), why: e.to_string() })?;
+    let arch = read_arch(&bytes).map_err(Error::format(path))?;
     let mut net = Net::new(arch, device);
     let mut store = SafetensorsStore::from_bytes(Some(bytes));
     let r = net

@@ -10,39 +10,86 @@ use crate::{Error, Result};
 use std::collections::HashMap;
 use std::path::Path;
 
+/// Why a file was not read as a model: each rule a safetensors model file must keep. The
+/// message names the tensor or the metadata entry; `serde_json`'s error is kept where it is one.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum WeightsError {
+    #[error("truncated: no safetensors header")]
+    NoHeader,
+    #[error("truncated safetensors header")]
+    TruncatedHeader,
+    #[error("bad safetensors header ({0})")]
+    Header(serde_json::Error),
+    #[error("the safetensors header is not a table")]
+    NotTable,
+    #[error("no `arch` in the metadata: not a pipeline model")]
+    NoArch,
+    #[error(
+        "no `arch` in the metadata, and neither a U-Net (inc.a.0.weight) nor a shallow model (blocks.0.0.weight): not a pipeline model"
+    )]
+    NotPipeline,
+    #[error("unknown arch {arch:?} ({cause})")]
+    UnknownArch { arch: String, cause: serde_json::Error },
+    #[error("the metadata names {arch}, outside 1 to {max} filters")]
+    Width { arch: String, max: usize },
+    #[error("the metadata names {arch} (at least {least} weights) but the file declares {declared}")]
+    Declared { arch: String, least: usize, declared: u128 },
+    #[error("{key} is missing: the weights do not fit {arch}")]
+    Missing { key: String, arch: String },
+    #[error("{key} has shape {got:?}, {arch} needs {want:?}")]
+    Shape { key: String, got: Vec<usize>, want: Vec<usize>, arch: String },
+    #[error("{key}: tensor data out of range (truncated file?)")]
+    OutOfRange { key: String },
+    #[error("{key}: is {dtype}, expected F32, F16 or BF16")]
+    Dtype { key: String, dtype: String },
+    #[error("{key}: {bytes} bytes of {dtype} for {values} values")]
+    Size { key: String, bytes: usize, dtype: String, values: usize },
+    #[error("{count} weights are not finite (NaN or infinite); the model cannot be used")]
+    NotFinite { count: usize },
+    #[error("{name} is not a parameter of {arch}")]
+    Extra { name: String, arch: String },
+}
+
+type Checked<T> = std::result::Result<T, WeightsError>;
+
 /// The JSON header of a safetensors file.
-pub(crate) fn read_header(bytes: &[u8]) -> std::result::Result<serde_json::Value, String> {
+pub(crate) fn read_header(bytes: &[u8]) -> Checked<serde_json::Value> {
     if bytes.len() < 8 {
-        return Err("truncated: no safetensors header".into());
+        return Err(WeightsError::NoHeader);
     }
     let n = u64::from_le_bytes(bytes[..8].try_into().expect("8 bytes")) as usize;
-    let header = bytes.get(8..8usize.saturating_add(n)).ok_or("truncated safetensors header")?;
-    serde_json::from_slice(header).map_err(|e| format!("bad safetensors header ({e})"))
+    let header = bytes.get(8..8usize.saturating_add(n)).ok_or(WeightsError::TruncatedHeader)?;
+    serde_json::from_slice(header).map_err(WeightsError::Header)
 }
 
 /// The `__metadata__` of a safetensors header.
-pub fn read_meta(bytes: &[u8]) -> std::result::Result<serde_json::Value, String> {
+pub fn read_meta(bytes: &[u8]) -> Checked<serde_json::Value> {
     Ok(read_header(bytes)?["__metadata__"].clone())
+}
+
+/// An `arch` string of a model's metadata.
+fn parse_arch(arch: &str) -> Checked<Arch> {
+    serde_json::from_str(arch).map_err(|cause| WeightsError::UnknownArch { arch: arch.into(), cause })
 }
 
 /// The `arch` entry of a safetensors header's metadata, checked before anything is allocated
 /// for it: within the sizes `pipeline train` accepts, and no larger than the weights the file
 /// declares (a network of width `b` has at least one b-to-b 3x3 convolution, 9 b^2 weights).
-pub fn read_arch(bytes: &[u8]) -> std::result::Result<Arch, String> {
+pub fn read_arch(bytes: &[u8]) -> Checked<Arch> {
     let header = read_header(bytes)?;
-    let arch = header["__metadata__"]["arch"].as_str().ok_or("no `arch` in the metadata: not a pipeline model")?;
-    let parsed: Arch = serde_json::from_str(arch).map_err(|e| format!("unknown arch {arch:?} ({e})"))?;
+    let parsed = parse_arch(header["__metadata__"]["arch"].as_str().ok_or(WeightsError::NoArch)?)?;
     check_size(parsed, &header).map(|()| parsed)
 }
 
 /// `arch`'s width within what `pipeline train` accepts and within the weights `header` declares.
-fn check_size(arch: Arch, header: &serde_json::Value) -> std::result::Result<(), String> {
+fn check_size(arch: Arch, header: &serde_json::Value) -> Checked<()> {
     let (b, max) = match arch {
         Arch::Unet { base } | Arch::BurstUnet { base } => (base, 256),
         Arch::Shallow { width } => (width, 1024),
     };
     if b == 0 || b > max {
-        return Err(format!("the metadata names {}, outside 1 to {max} filters", arch.name()));
+        return Err(WeightsError::Width { arch: arch.name(), max });
     }
     let declared: u128 = header
         .as_object()
@@ -54,7 +101,7 @@ fn check_size(arch: Arch, header: &serde_json::Value) -> std::result::Result<(),
         })
         .unwrap_or(0);
     if 9 * (b as u128) * (b as u128) > declared {
-        return Err(format!("the metadata names {} (at least {} weights) but the file declares {declared}", arch.name(), 9 * b * b));
+        return Err(WeightsError::Declared { arch: arch.name(), least: 9 * b * b, declared });
     }
     Ok(())
 }
@@ -173,16 +220,17 @@ impl Weights {
     /// # Errors
     /// Not safetensors; no architecture; a missing, misshapen, extra or non-finite weight (named).
     pub fn from_bytes(bytes: &[u8], name: &str) -> Result<Weights> {
-        let bad = |why: String| Error::File { path: name.into(), why };
-        let header = read_header(bytes).map_err(bad)?;
-        let obj = header.as_object().ok_or_else(|| bad("the safetensors header is not a table".into()))?;
+        Weights::check(bytes).map_err(|cause| Error::Format { path: name.into(), cause: cause.into() })
+    }
+
+    fn check(bytes: &[u8]) -> Checked<Weights> {
+        let header = read_header(bytes)?;
+        let obj = header.as_object().ok_or(WeightsError::NotTable)?;
         let arch = match header["__metadata__"]["arch"].as_str() {
-            Some(a) => serde_json::from_str(a).map_err(|e| bad(format!("unknown arch {a:?} ({e})")))?,
-            None => arch_from_torch_shapes(&header).ok_or_else(|| {
-                bad("no `arch` in the metadata, and neither a U-Net (inc.a.0.weight) nor a shallow model (blocks.0.0.weight): not a pipeline model".into())
-            })?,
+            Some(a) => parse_arch(a)?,
+            None => arch_from_torch_shapes(&header).ok_or(WeightsError::NotPipeline)?,
         };
-        check_size(arch, &header).map_err(bad)?;
+        check_size(arch, &header)?;
         let data = &bytes[8 + u64::from_le_bytes(bytes[..8].try_into().expect("8 bytes")) as usize..];
         let want = param_shapes(arch);
         // A file's name for each wanted tensor: burn's, or the PyTorch one.
@@ -191,28 +239,28 @@ impl Weights {
         let mut bad_values = 0usize;
         for (burn, shape) in &want {
             let key = if torch { torch_name(burn).expect("every parameter has a PyTorch name") } else { burn.clone() };
-            let t = obj.get(&key).ok_or_else(|| bad(format!("{key} is missing: the weights do not fit {}", arch.name())))?;
+            let t = obj.get(&key).ok_or_else(|| WeightsError::Missing { key: key.clone(), arch: arch.name() })?;
             let got: Vec<usize> =
                 t["shape"].as_array().map(|s| s.iter().filter_map(|d| d.as_u64()).map(|d| d as usize).collect()).unwrap_or_default();
             if &got != shape {
-                return Err(bad(format!("{key} has shape {got:?}, {} needs {shape:?}", arch.name())));
+                return Err(WeightsError::Shape { key, got, want: shape.clone(), arch: arch.name() });
             }
             let off = &t["data_offsets"];
             let (a, b) = (off[0].as_u64().unwrap_or(u64::MAX) as usize, off[1].as_u64().unwrap_or(0) as usize);
-            let raw = data.get(a..b).ok_or_else(|| bad(format!("{key}: tensor data out of range (truncated file?)")))?;
-            let values = decode(raw, t["dtype"].as_str().unwrap_or(""), shape.iter().product()).map_err(|e| bad(format!("{key}: {e}")))?;
+            let raw = data.get(a..b).ok_or_else(|| WeightsError::OutOfRange { key: key.clone() })?;
+            let values = decode(raw, t["dtype"].as_str().unwrap_or(""), shape.iter().product(), &key)?;
             bad_values += values.iter().filter(|v| !v.is_finite()).count();
             tensors.insert(burn.clone(), values);
         }
         if bad_values > 0 {
-            return Err(bad(format!("{bad_values} weights are not finite (NaN or infinite); the model cannot be used")));
+            return Err(WeightsError::NotFinite { count: bad_values });
         }
         // A tensor the network does not have means the file is of another network.
         let known = obj.len() - usize::from(obj.contains_key("__metadata__"));
         let batches = obj.keys().filter(|k| k.ends_with("num_batches_tracked")).count();
         if known - batches != want.len() {
             let extra = obj.keys().find(|k| *k != "__metadata__" && !k.ends_with("num_batches_tracked") && !tensors_has(&want, k, torch));
-            return Err(bad(format!("{} is not a parameter of {}", extra.map_or("a tensor", |s| s.as_str()), arch.name())));
+            return Err(WeightsError::Extra { name: extra.map_or("a tensor", |s| s.as_str()).into(), arch: arch.name() });
         }
         Ok(Weights { arch, tensors })
     }
@@ -228,14 +276,14 @@ fn tensors_has(want: &[(String, Vec<usize>)], key: &str, torch: bool) -> bool {
 }
 
 /// `n` values of `dtype` (F32, F16 or BF16, little-endian) as f32.
-fn decode(raw: &[u8], dtype: &str, n: usize) -> std::result::Result<Vec<f32>, String> {
+fn decode(raw: &[u8], dtype: &str, n: usize, key: &str) -> Checked<Vec<f32>> {
     let size = match dtype {
         "F32" => 4,
         "F16" | "BF16" => 2,
-        other => return Err(format!("is {other}, expected F32, F16 or BF16")),
+        other => return Err(WeightsError::Dtype { key: key.into(), dtype: other.into() }),
     };
     if raw.len() != n * size {
-        return Err(format!("{} bytes of {dtype} for {n} values", raw.len()));
+        return Err(WeightsError::Size { key: key.into(), bytes: raw.len(), dtype: dtype.into(), values: n });
     }
     Ok(match dtype {
         "F32" => raw.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect(),
@@ -265,7 +313,7 @@ impl Latest {
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
             Err(e) => return Err(Error::Io { path: lp, cause: e }),
         };
-        let latest: Latest = serde_json::from_slice(&bytes).map_err(|e| Error::File { path: lp.to_path_buf(), why: e.to_string() })?;
+        let latest: Latest = serde_json::from_slice(&bytes).map_err(|e| Error::Format { path: lp.to_path_buf(), cause: e.into() })?;
         let model = crate::io::paths::inside(dir, &latest.model, &lp, "model")?;
         let optimizer = crate::io::paths::inside(dir, &latest.optimizer, &lp, "optimizer")?;
         Ok(Some((latest, model, optimizer)))
@@ -323,9 +371,9 @@ mod tests {
     fn an_architecture_larger_than_its_file_is_refused_before_allocation() {
         // A 100-byte file claiming a U-Net of base 100000 (it aborted the process before).
         let e = read_arch(&file(r#"{"type":"unet","base":100000}"#, &[1])).unwrap_err();
-        assert!(e.contains("unet") && e.contains("outside 1 to 256"), "{e}");
+        assert!(matches!(&e, WeightsError::Width { arch, max: 256 } if arch.contains("unet")), "{e}");
         let e = read_arch(&file(r#"{"type":"shallow","width":200}"#, &[3, 3])).unwrap_err();
-        assert!(e.contains("at least 360000 weights") && e.contains("declares 9"), "{e}");
+        assert!(matches!(e, WeightsError::Declared { least: 360000, declared: 9, .. }), "{e}");
         assert_eq!(read_arch(&file(r#"{"type":"shallow","width":2}"#, &[4, 9])).unwrap(), Arch::Shallow { width: 2 });
         assert_eq!(read_arch(crate::model::infer::DEFAULT_MODEL).unwrap(), Arch::Unet { base: 32 });
     }

@@ -113,7 +113,7 @@ impl StageConfig for StillsConfig {
 /// Reads a PNG into planar encoded values in [0, 1].
 fn read_png(path: &std::path::Path) -> Result<(usize, usize, [Vec<f32>; 3]), String> {
     let bytes = std::fs::read(path).map_err(|e| e.to_string())?;
-    let (w, h, rgb) = crate::io::png::read_rgb8(&bytes).map_err(|e| format!("not a readable PNG ({e})"))?;
+    let (w, h, rgb) = crate::io::png::read_rgb8(&bytes).map_err(|e| e.to_string())?;
     let p = std::array::from_fn(|c| (0..w * h).map(|i| rgb[i * 3 + c] as f32 / 255.0).collect());
     Ok((w, h, p))
 }
@@ -248,8 +248,7 @@ pub fn load_sprites(paths: &[String], max_side: usize) -> crate::Result<Vec<Arc<
     let mut out = Vec::with_capacity(files.len());
     for f in files {
         let bytes = std::fs::read(&f).map_err(|e| crate::Error::Io { path: f.clone(), cause: e })?;
-        let (w, h, rgba) = crate::io::png::read_rgba8(&bytes)
-            .map_err(|e| crate::Error::File { path: f.clone(), why: format!("not a readable PNG ({e})") })?;
+        let (w, h, rgba) = crate::io::png::read_rgba8(&bytes).map_err(crate::Error::format(&f))?;
         if !rgba.chunks_exact(4).any(|p| p[3] < 255) {
             return Err(crate::Error::File {
                 path: f.clone(),

@@ -56,7 +56,7 @@ impl Picture {
 fn read_picture(f: &Path, ext: &str) -> Result<Picture> {
     if ext == "png" {
         let bytes = std::fs::read(f).map_err(|e| Error::Io { path: f.to_path_buf(), cause: e })?;
-        return png_io::read_samples(&bytes).map(Picture::Png).map_err(|e| Error::File { path: f.to_path_buf(), why: e.to_string() });
+        return png_io::read_samples(&bytes).map(Picture::Png).map_err(Error::format(f));
     }
     #[cfg(feature = "ffmpeg")]
     {
