@@ -243,15 +243,16 @@ shards() {
   done
 }
 
-# Test clips: each test photograph moved by one named motion at a time, windows of 13 frames of
+# Test clips: each test photograph moved by one named motion at a time (hand: hand-held shake to
+# 60 px of spread, render/hand.rs), windows of 13 frames of
 # one motion each (so the N = 7 to 13 windows that `pipeline eval` centres in them see the same
 # motion, shorter), written as lossless video.
 test_clips() {
-  for kind in shake objects still pan rotate zoom; do
+  for kind in shake objects still pan rotate zoom hand; do
     d="$DATA/test/$kind"
     [ -n "$(ls "$d"/*.mkv 2>/dev/null)" ] && continue
     rm -rf "$d.frames"
-    w=""; for k in shake objects still pan rotate zoom; do w="$w${w:+, }$k = $([ $k = "$kind" ] && echo 1.0 || echo 0.0)"; done
+    w=""; for k in shake objects still pan rotate zoom hand; do w="$w${w:+, }$k = $([ $k = "$kind" ] && echo 1.0 || echo 0.0)"; done
     "$PIPELINE" run pipelines/test-clips.toml -o "$d.frames" --set "sources.stills.paths=[\"$DATA/photos/test\"]" \
       --set "sources.stills.motion.weights={ $w }" --set seed=$((100 + ${#kind}))
     mkdir -p "$d"

@@ -9,6 +9,7 @@
 //! (cut-outs with their own anti-aliased alpha, or shapes cut from the photo with a one-pixel
 //! analytic edge) composited over the background in order, so nearer objects occlude farther ones.
 
+pub use super::sprite::Sprite;
 use crate::checks::Checker;
 use crate::rng::Rng;
 use serde::{Deserialize, Serialize};
@@ -37,6 +38,8 @@ pub struct MotionConfig {
     /// Frames per motion (0: the blur's window N). Test clips for `pipeline eval` use the longest
     /// N, so that every shorter window centred in it sees the same motion, shorter.
     pub window: usize,
+    /// The `hand` motion's trajectories (`[sources.x.motion.hand]`).
+    pub hand: super::hand::HandConfig,
 }
 
 /// Relative weights of the motions; 0 turns one off.
@@ -49,11 +52,13 @@ pub struct MotionWeights {
     pub objects: f64,
     pub rotate: f64,
     pub zoom: f64,
+    /// Hand-held shake to 60 px of spread ([`super::hand`]); 0 unless asked for.
+    pub hand: f64,
 }
 
 impl Default for MotionWeights {
     fn default() -> Self {
-        MotionWeights { still: 0.15, pan: 0.1, shake: 0.35, objects: 0.25, rotate: 0.075, zoom: 0.075 }
+        MotionWeights { still: 0.15, pan: 0.1, shake: 0.35, objects: 0.25, rotate: 0.075, zoom: 0.075, hand: 0.0 }
     }
 }
 
@@ -68,6 +73,7 @@ impl Default for MotionConfig {
             object_paths: Vec::new(),
             background_moves: 0.5,
             window: 0,
+            hand: Default::default(),
         }
     }
 }
@@ -82,11 +88,19 @@ pub enum MotionKind {
     Objects,
     Rotate,
     Zoom,
+    Hand,
 }
 
 impl MotionKind {
-    pub const ALL: [MotionKind; 6] =
-        [MotionKind::Still, MotionKind::Pan, MotionKind::Shake, MotionKind::Objects, MotionKind::Rotate, MotionKind::Zoom];
+    pub const ALL: [MotionKind; 7] = [
+        MotionKind::Still,
+        MotionKind::Pan,
+        MotionKind::Shake,
+        MotionKind::Objects,
+        MotionKind::Rotate,
+        MotionKind::Zoom,
+        MotionKind::Hand,
+    ];
     pub fn name(self) -> &'static str {
         match self {
             MotionKind::Still => "still",
@@ -95,14 +109,15 @@ impl MotionKind {
             MotionKind::Objects => "objects",
             MotionKind::Rotate => "rotate",
             MotionKind::Zoom => "zoom",
+            MotionKind::Hand => "hand",
         }
     }
 }
 
 impl MotionWeights {
     /// The weights in the order of [`MotionKind::ALL`].
-    fn by_kind(&self) -> [f64; 6] {
-        [self.still, self.pan, self.shake, self.objects, self.rotate, self.zoom]
+    fn by_kind(&self) -> [f64; 7] {
+        [self.still, self.pan, self.shake, self.objects, self.rotate, self.zoom, self.hand]
     }
 }
 
@@ -124,6 +139,7 @@ impl MotionConfig {
         c.range(&format!("{key}.object_size[1]"), self.object_size[1], self.object_size[0], 1.0);
         c.range(&format!("{key}.background_moves"), self.background_moves, 0.0, 1.0);
         c.range_usize(&format!("{key}.window"), self.window, 0, 4096);
+        self.hand.validate(c, &format!("{key}.hand"));
     }
 
     fn kind(&self, rng: &mut Rng) -> MotionKind {
@@ -159,115 +175,6 @@ impl Pose {
         let (dx, dy) = (p.0 - self.t.0 - c.0, p.1 - self.t.1 - c.1);
         let (s, co) = (-self.theta).sin_cos();
         (c.0 + (co * dx - s * dy) / self.scale, c.1 + (s * dx + co * dy) / self.scale)
-    }
-}
-
-/// An RGBA layer with premultiplied colour (linear in the encoded values, as the stills are).
-#[derive(Debug, Clone)]
-pub struct Sprite {
-    pub w: usize,
-    pub h: usize,
-    pub rgb: [Vec<f32>; 3],
-    pub alpha: Vec<f32>,
-}
-
-impl Sprite {
-    /// From interleaved RGBA 8-bit, box-reduced by an integer factor so its longer side is at
-    /// most `max_side` (the bilinear sampling later then never skips source pixels).
-    pub fn from_rgba8(w: usize, h: usize, rgba: &[u8], max_side: usize) -> Sprite {
-        let k = w.max(h).div_ceil(max_side.max(1)).max(1);
-        let (ow, oh) = (w / k, h / k);
-        let mut s = Sprite {
-            w: ow.max(1),
-            h: oh.max(1),
-            rgb: std::array::from_fn(|_| vec![0.0; ow.max(1) * oh.max(1)]),
-            alpha: vec![0.0; ow.max(1) * oh.max(1)],
-        };
-        for y in 0..oh {
-            for x in 0..ow {
-                let mut acc = [0.0f32; 4];
-                for yy in y * k..(y + 1) * k {
-                    for xx in x * k..(x + 1) * k {
-                        let p = &rgba[(yy * w + xx) * 4..(yy * w + xx) * 4 + 4];
-                        let a = p[3] as f32 / 255.0;
-                        for c in 0..3 {
-                            acc[c] += p[c] as f32 / 255.0 * a;
-                        }
-                        acc[3] += a;
-                    }
-                }
-                let n = (k * k) as f32;
-                for c in 0..3 {
-                    s.rgb[c][y * ow + x] = acc[c] / n;
-                }
-                s.alpha[y * ow + x] = acc[3] / n;
-            }
-        }
-        s
-    }
-
-    /// A shape cut from `img` at `src` (top-left, image pixels): an ellipse or a convex polygon
-    /// with a one-pixel anti-aliased edge.
-    fn cut(img: &[Vec<f32>; 3], iw: usize, ih: usize, w: usize, h: usize, src: (f64, f64), rng: &mut Rng) -> Sprite {
-        let (cx, cy) = (w as f64 / 2.0, h as f64 / 2.0);
-        // A polygon as its edges: a point on each and the inward unit normal (inside is where
-        // every edge's cross product has the sign of the polygon's area).
-        let polygon: Option<Vec<(f64, f64, f64, f64)>> = (rng.uniform() < 0.5).then(|| {
-            let n = 3 + rng.below(5);
-            let mut angles: Vec<f64> = (0..n).map(|_| rng.range(0.0, std::f64::consts::TAU)).collect();
-            angles.sort_by(f64::total_cmp);
-            let v: Vec<(f64, f64)> = angles.iter().map(|a| (cx + (cx - 1.0) * a.cos(), cy + (cy - 1.0) * a.sin())).collect();
-            let next = |i: usize| v[(i + 1) % v.len()];
-            let sign = (0..v.len()).map(|i| v[i].0 * next(i).1 - next(i).0 * v[i].1).sum::<f64>().signum();
-            (0..v.len())
-                .map(|i| {
-                    let (ex, ey) = (next(i).0 - v[i].0, next(i).1 - v[i].1);
-                    let len = (ex * ex + ey * ey).sqrt().max(1e-9);
-                    (v[i].0, v[i].1, -sign * ey / len, sign * ex / len)
-                })
-                .collect()
-        });
-        let mut s = Sprite { w, h, rgb: std::array::from_fn(|_| vec![0.0; w * h]), alpha: vec![0.0; w * h] };
-        for y in 0..h {
-            for x in 0..w {
-                let (px, py) = (x as f64 + 0.5, y as f64 + 0.5);
-                // Signed distance inside the edge, in pixels (approximate for the ellipse).
-                let d = match &polygon {
-                    Some(edges) => edges.iter().map(|&(ax, ay, nx, ny)| nx * (px - ax) + ny * (py - ay)).fold(f64::INFINITY, f64::min),
-                    _ => {
-                        let (nx, ny) = ((px - cx) / cx, (py - cy) / cy);
-                        (1.0 - (nx * nx + ny * ny).sqrt()) * cx.min(cy)
-                    }
-                };
-                let a = (d + 0.5).clamp(0.0, 1.0) as f32;
-                let i = y * w + x;
-                s.alpha[i] = a;
-                for c in 0..3 {
-                    s.rgb[c][i] = a * super::texture::sample(&img[c], iw, ih, src.0 + px - 0.5, src.1 + py - 0.5);
-                }
-            }
-        }
-        s
-    }
-
-    /// Premultiplied colour and alpha at sprite point `(x, y)`, zero outside.
-    fn at(&self, x: f64, y: f64) -> ([f32; 3], f32) {
-        let (fx, fy) = ((x - 0.5).floor(), (y - 0.5).floor());
-        let (ax, ay) = ((x - 0.5 - fx) as f32, (y - 0.5 - fy) as f32);
-        let (x0, y0) = (fx as isize, fy as isize);
-        let mut out = ([0.0f32; 3], 0.0f32);
-        for (dx, dy, wgt) in [(0, 0, (1.0 - ax) * (1.0 - ay)), (1, 0, ax * (1.0 - ay)), (0, 1, (1.0 - ax) * ay), (1, 1, ax * ay)] {
-            let (xx, yy) = (x0 + dx, y0 + dy);
-            if wgt == 0.0 || xx < 0 || yy < 0 || xx >= self.w as isize || yy >= self.h as isize {
-                continue;
-            }
-            let i = yy as usize * self.w + xx as usize;
-            for c in 0..3 {
-                out.0[c] += wgt * self.rgb[c][i];
-            }
-            out.1 += wgt * self.alpha[i];
-        }
-        out
     }
 }
 
@@ -363,6 +270,13 @@ impl WindowMotion {
                     p.t = t;
                 }
             }
+            MotionKind::Hand => {
+                let (path, extent) = cfg.hand.path(n, scale, rng);
+                m.extent_px = extent;
+                for (p, t) in m.poses.iter_mut().zip(path) {
+                    p.t = t;
+                }
+            }
             MotionKind::Rotate => {
                 m.extent_px = cfg.extent(rng, scale);
                 let dtheta = m.extent_px / r_max * if rng.uniform() < 0.5 { -1.0 } else { 1.0 };
@@ -418,7 +332,7 @@ impl WindowMotion {
     }
 
     /// What `key.json` records of the window; for a motion of the whole frame by translation
-    /// (still, pan, shake) also `shift`, each frame's displacement in pixels, so that a
+    /// (still, pan, shake, hand) also `shift`, each frame's displacement in pixels, so that a
     /// reconstruction can be told the true kernel (`pipeline eval`'s Wiener bound).
     pub fn label(&self) -> String {
         let mut v = serde_json::json!({ "kind": self.kind.name(), "extent_px": (self.extent_px * 100.0).round() / 100.0 });
@@ -426,7 +340,7 @@ impl WindowMotion {
             v["objects"] = self.objects.len().into();
             v["background"] = b.name().into();
         }
-        if matches!(self.kind, MotionKind::Still | MotionKind::Pan | MotionKind::Shake) {
+        if matches!(self.kind, MotionKind::Still | MotionKind::Pan | MotionKind::Shake | MotionKind::Hand) {
             let r = |x: f64| (x * 1000.0).round() / 1000.0;
             v["shift"] = self.poses.iter().map(|p| serde_json::json!([r(p.t.0), r(p.t.1)])).collect::<Vec<_>>().into();
         }
@@ -483,16 +397,18 @@ mod tests {
     }
 
     fn only(kind: &str) -> MotionConfig {
-        let mut w = MotionWeights { still: 0.0, pan: 0.0, shake: 0.0, objects: 0.0, rotate: 0.0, zoom: 0.0 };
+        let mut w = MotionWeights { still: 0.0, pan: 0.0, shake: 0.0, objects: 0.0, rotate: 0.0, zoom: 0.0, hand: 0.0 };
         match kind {
             "still" => w.still = 1.0,
             "pan" => w.pan = 1.0,
             "shake" => w.shake = 1.0,
             "objects" => w.objects = 1.0,
             "rotate" => w.rotate = 1.0,
+            "hand" => w.hand = 1.0,
             _ => w.zoom = 1.0,
         }
-        MotionConfig { weights: w, extent_px: [10.0, 30.0], ..Default::default() }
+        let hand = super::super::hand::HandConfig { extent_px: [10.0, 30.0], ..Default::default() };
+        MotionConfig { weights: w, extent_px: [10.0, 30.0], hand, ..Default::default() }
     }
 
     #[test]
@@ -514,7 +430,7 @@ mod tests {
         let (iw, ih, w, h) = (160, 128, 96, 80);
         let img = texture(iw, ih);
         let off = (32.0, 24.0);
-        for kind in ["still", "pan", "shake", "objects", "rotate", "zoom"] {
+        for kind in ["still", "pan", "shake", "objects", "rotate", "zoom", "hand"] {
             let cfg = only(kind);
             let m = WindowMotion::draw(&cfg, 9, w, h, &img, iw, ih, &[], &mut Rng::new(5));
             assert_eq!(m.kind.name(), kind);
@@ -530,7 +446,7 @@ mod tests {
                 assert!(diff > 0.005, "{kind}: frames 0 and 4 differ by only {diff}");
             }
             // The middle frame of a window without objects is the view itself, unmoved.
-            if matches!(kind, "still" | "pan" | "shake" | "rotate" | "zoom") {
+            if matches!(kind, "still" | "pan" | "shake" | "rotate" | "zoom" | "hand") {
                 let x = 40;
                 let y = 30;
                 let want = super::super::texture::sample(&img[1], iw, ih, off.0 + x as f64, off.1 + y as f64);
