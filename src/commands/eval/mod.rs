@@ -168,6 +168,10 @@ pub struct Record {
     /// windows moved as a whole by translation with a known path.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub bound: Option<Quality>,
+    /// How far the window's path spreads the image (the distance between its two farthest
+    /// positions, pixels), for windows moved as a whole by translation with a known path.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub spread_px: Option<f64>,
     /// The side-by-side PNG of this record, if one was written.
     pub example: Option<String>,
 }
@@ -189,6 +193,21 @@ pub struct Cell {
     pub bound: Option<(Quality, usize)>,
 }
 
+/// Shaking windows of one motion, N and range of spread: the mean over every sigma.
+#[derive(Debug, Clone, Serialize)]
+pub struct SpreadCell {
+    pub motion: String,
+    pub window: usize,
+    /// Spread range in pixels, [from, to) (`to` infinite for the last bin).
+    pub spread_px: [f64; 2],
+    pub count: usize,
+    pub blurred: Quality,
+    pub deblurred: Quality,
+}
+
+/// The spread bins of the shake table, pixels: 0-10, 10-20, 20-40, 40-60, 60 and more.
+pub const SPREAD_BINS: [f64; 5] = [0.0, 10.0, 20.0, 40.0, 60.0];
+
 /// `eval.json`.
 #[derive(Debug, Serialize)]
 pub struct EvalReport {
@@ -206,6 +225,8 @@ pub struct EvalReport {
     pub per_sigma: Vec<Cell>,
     /// Per video and N, the mean over all sigmas: which footage carries the averages.
     pub per_video: Vec<Cell>,
+    /// Camera shake (`shake`, `hand`) per N and spread of the path, the mean over every sigma.
+    pub per_spread: Vec<SpreadCell>,
     pub records: Vec<Record>,
     /// Another model's Table 1 on the same clips (`--versus`).
     #[serde(skip_serializing_if = "Option::is_none")]

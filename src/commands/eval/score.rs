@@ -34,6 +34,35 @@ fn cell(records: &[Record], video: Option<&str>, window: usize, sigma: Option<f6
     }
 }
 
+/// The shaking windows (`shake`, `hand`) with a known spread, per motion, N and bin of
+/// [`SPREAD_BINS`], the mean over every sigma; empty bins left out.
+pub(crate) fn spread_cells(records: &[Record], windows: &[usize]) -> Vec<SpreadCell> {
+    let mut out = Vec::new();
+    for motion in ["shake", "hand"] {
+        for &n in windows {
+            for (i, &lo) in SPREAD_BINS.iter().enumerate() {
+                let hi = SPREAD_BINS.get(i + 1).copied().unwrap_or(f64::INFINITY);
+                let sel: Vec<&Record> = records
+                    .iter()
+                    .filter(|r| r.window == n && r.motion.as_deref() == Some(motion) && r.spread_px.is_some_and(|s| lo <= s && s < hi))
+                    .collect();
+                if sel.is_empty() {
+                    continue;
+                }
+                out.push(SpreadCell {
+                    motion: motion.into(),
+                    window: n,
+                    spread_px: [lo, hi],
+                    count: sel.len(),
+                    blurred: mean_quality(&sel.iter().map(|r| &r.blurred).collect::<Vec<_>>()),
+                    deblurred: mean_quality(&sel.iter().map(|r| &r.deblurred).collect::<Vec<_>>()),
+                });
+            }
+        }
+    }
+    out
+}
+
 /// The region scored in a `w x h` frame: a centred square of `crop`, or the whole frame.
 pub(crate) fn region(w: usize, h: usize, crop: usize) -> [usize; 4] {
     if crop == 0 || (crop >= w && crop >= h) {
@@ -172,10 +201,10 @@ pub fn run(
                 let key = hash(&[f.seed, vi as u64, first + c, n as u64, hash_str("eval-noise")]);
                 let motion = log.as_ref().and_then(|l| l.kind(first + c)).map(str::to_string);
                 // The window's true kernel, where its motion is a known translation of the frame.
-                let truth = log
-                    .as_ref()
-                    .and_then(|l| l.shifts(first + start as u64, n, first + c))
-                    .map(|sh| (crate::imaging::truth::window_kernel(&mut s.blurrers[ni], &sh).0, mid.linear_crop(rx, ry, rw, rh)));
+                let shifts = log.as_ref().and_then(|l| l.shifts(first + start as u64, n, first + c));
+                let spread_px = shifts.as_deref().map(|sh| (crate::render::hand::spread(sh) * 100.0).round() / 100.0);
+                let truth =
+                    shifts.map(|sh| (crate::imaging::truth::window_kernel(&mut s.blurrers[ni], &sh).0, mid.linear_crop(rx, ry, rw, rh)));
                 for &sigma in &e.sigmas {
                     let blurred = read_out(&blur, (rx, ry, rw, rh), &s.enc, sigma, throughput, key);
                     let deblurred = run_frame(net, &blurred, rw, rh, tiling);
@@ -212,6 +241,7 @@ pub fn run(
                         deblurred: qd,
                         motion: motion.clone(),
                         bound,
+                        spread_px,
                         example,
                     });
                     bar.inc(1);
@@ -231,6 +261,7 @@ pub fn run(
         }
     }
     let per_video = videos.iter().flat_map(|v| e.windows.iter().map(|&n| cell(&records, Some(v), n, None))).collect();
+    let per_spread = spread_cells(&records, &e.windows);
     let report = EvalReport {
         version: env!("CARGO_PKG_VERSION"),
         model: model.into(),
@@ -243,6 +274,7 @@ pub fn run(
         table,
         per_sigma,
         per_video,
+        per_spread,
         records,
         versus: None,
     };

@@ -69,6 +69,30 @@ fn rows(cells: &[Cell], with_sigma: bool, versus: Option<&Versus>) -> String {
     s
 }
 
+/// The shake table: per motion, N and spread bin, PSNR dB / SSIM (RGB) and the gain.
+fn spread_rows(cells: &[SpreadCell]) -> String {
+    let mut s = String::from(
+        "| motion | N | spread px | windows | blurred input (RGB) | deblurred (RGB) | gain dB |\n|---|---|---|---|---|---|---|\n",
+    );
+    for c in cells {
+        let range = if c.spread_px[1].is_finite() {
+            format!("{}-{}", c.spread_px[0], c.spread_px[1])
+        } else {
+            format!("{} and more", c.spread_px[0])
+        };
+        s.push_str(&format!(
+            "| {} | N={} | {range} | {} | {} | {} | {:+.2} |\n",
+            c.motion,
+            c.window,
+            c.count,
+            pair(&c.blurred, false),
+            pair(&c.deblurred, false),
+            c.deblurred.psnr_rgb - c.blurred.psnr_rgb
+        ));
+    }
+    s
+}
+
 /// `eval.md`: Table 1 (mean over sigma) and the per-sigma tables, PSNR dB / SSIM.
 pub fn markdown(r: &EvalReport) -> String {
     let sig: Vec<String> = r.config.eval.sigmas.iter().map(|s| s.to_string()).collect();
@@ -89,6 +113,10 @@ pub fn markdown(r: &EvalReport) -> String {
     s.push_str(&rows(&r.per_sigma, true, None));
     s.push_str(&format!("\n## Per video: mean over sigma in {{{}}}\n\n", sig.join(", ")));
     s.push_str(&rows(&r.per_video, false, None));
+    if !r.per_spread.is_empty() {
+        s.push_str(&format!("\n## Camera shake by spread of the path: mean over sigma in {{{}}}\n\n", sig.join(", ")));
+        s.push_str(&spread_rows(&r.per_spread));
+    }
     let ex: Vec<&str> = r.records.iter().filter_map(|x| x.example.as_deref()).collect();
     if !ex.is_empty() {
         s.push_str("\n## Examples (blurred | deblurred | sharp)\n\n");
