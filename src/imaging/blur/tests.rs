@@ -74,7 +74,7 @@ fn the_low_rank_error_stays_within_its_reported_bound() {
     // the dropped directions, which are high-frequency). The measured RMS error is not zero and
     // stays under the bound. The bound is a worst case (a grating at the dropped directions'
     // strongest frequency in every sub-frame): white and natural frames measure 20 to 100
-    // times below it (docs/performance.md).
+    // times below it (docs/performance.md, the low-rank budget).
     let cam = Arc::new(Camera::new(&OpticsConfig::default(), &CameraConfig::new(CameraKind::PhaseCoded)));
     let (w, h) = (64, 56);
     let fr = frames(9, w, h, 4);
