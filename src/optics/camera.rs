@@ -15,6 +15,7 @@
 //! ```
 
 use super::config::{Axis, CameraConfig, CameraKind, OpticsConfig, PsiSchedule};
+use super::measured::{PsfAxis, Stack};
 use super::psf::{Lens, Psf};
 use crate::checks::ConfigError;
 use std::collections::HashMap;
@@ -91,6 +92,8 @@ pub struct Camera {
     optics: OpticsConfig,
     cfg: CameraConfig,
     lens: Option<Lens>,
+    /// The `measured` camera's stack, or why it could not be read.
+    stack: Option<Result<Arc<Stack>, String>>,
     /// PSFs by psi bits: different N that share a psi share the PSF.
     psfs: Mutex<HashMap<u64, Arc<Psf>>>,
     windows: Mutex<HashMap<usize, Arc<Vec<SubframeKernel>>>>,
@@ -113,10 +116,15 @@ impl Camera {
             _ if cfg.diffraction => Some(Lens::new(optics, false)),
             _ => None,
         };
+        let stack = (cfg.kind == CameraKind::Measured).then(|| match &cfg.psf_path {
+            Some(p) => Stack::read(p, cfg.psf_normalise).map(Arc::new),
+            None => Err("the measured camera needs a PSF stack (.npy, (K, H, W, 3))".into()),
+        });
         Camera {
             optics: optics.clone(),
             cfg: cfg.clone(),
             lens,
+            stack,
             psfs: Mutex::new(HashMap::new()),
             windows: Mutex::new(HashMap::new()),
             stats: Mutex::new(CacheStats::default()),
@@ -156,7 +164,8 @@ impl Camera {
 
     /// psi of each of the N sub-frames.
     pub fn psi_schedule(&self, n: usize) -> Result<Vec<f64>, ConfigError> {
-        if !matches!(self.cfg.kind, CameraKind::PhaseCoded | CameraKind::FocusSweep) {
+        let measured_psi = self.cfg.kind == CameraKind::Measured && self.cfg.psf_over == PsfAxis::Psi;
+        if !matches!(self.cfg.kind, CameraKind::PhaseCoded | CameraKind::FocusSweep) && !measured_psi {
             return Ok(vec![0.0; n]);
         }
         if let Some(v) = &self.cfg.psi_values {
@@ -277,6 +286,9 @@ impl Camera {
         }
         self.stats.lock().unwrap().window_misses += 1;
         let psis = self.psi_schedule(n)?;
+        if let Some(stack) = &self.stack {
+            return self.measured_window(n, stack, &psis);
+        }
         let psfs: Vec<Arc<Psf>> = {
             use rayon::prelude::*;
             psis.par_iter().map(|&p| self.psf_for(p)).collect()
@@ -290,6 +302,24 @@ impl Camera {
                 weight: weights[k],
                 shift: shifts[k],
                 psi: psis[k],
+            })
+            .collect();
+        let w = Arc::new(kernels);
+        self.windows.lock().unwrap().insert(n, w.clone());
+        Ok(w)
+    }
+
+    /// The window of the `measured` camera: each sub-frame's PSF from the stack, untrimmed (a
+    /// stack is used as measured), equal weights, no shift.
+    fn measured_window(&self, n: usize, stack: &Result<Arc<Stack>, String>, psis: &[f64]) -> Result<Arc<Vec<SubframeKernel>>, ConfigError> {
+        let stack = stack.as_ref().map_err(|e| ConfigError { key: "camera.psf_path".into(), message: e.clone() })?;
+        let kernels: Vec<SubframeKernel> = (0..n)
+            .map(|j| {
+                let psf = match self.cfg.psf_over {
+                    PsfAxis::Instants => stack.at_instant(j, n),
+                    PsfAxis::Psi => stack.at_psi(psis[j], self.cfg.psi),
+                };
+                SubframeKernel { psf: Arc::new(psf), weight: 1.0 / n as f64, shift: [0.0; 2], psi: psis[j] }
             })
             .collect();
         let w = Arc::new(kernels);

@@ -205,6 +205,8 @@ pub enum CameraKind {
     Flutter,
     /// Levin's parabolic sensor motion x = a t^2 along one axis.
     Parabolic,
+    /// A measured (or exported) PSF stack: `psf_path`, over instants or psi ([`super::measured`]).
+    Measured,
 }
 
 impl CameraKind {
@@ -215,6 +217,7 @@ impl CameraKind {
             CameraKind::PhaseCoded => "phase_coded",
             CameraKind::Flutter => "flutter",
             CameraKind::Parabolic => "parabolic",
+            CameraKind::Measured => "measured",
         }
     }
 }
@@ -261,6 +264,15 @@ pub struct CameraConfig {
     pub parabolic_axis: Axis,
     /// Sensor displacement a (pixels) at the ends of the exposure: x(t) = a t^2, t in [-1, 1].
     pub parabolic_amplitude_px: f64,
+    /// For `measured`: the PSF stack, `.npy` float32 (K, H, W, 3), as `pipeline psf --out` and
+    /// `pipeline calibrate` write it.
+    pub psf_path: Option<std::path::PathBuf>,
+    /// For `measured`: what the stack's K entries are (`instants` of the exposure, or `psi`
+    /// values evenly spaced over `psi`, mapped to sub-frames by `psi_schedule`).
+    pub psf_over: super::measured::PsfAxis,
+    /// For `measured`: rescale each channel of each entry to unit sum (else one off by more than
+    /// 1% is refused).
+    pub psf_normalise: bool,
 }
 
 impl Default for CameraConfig {
@@ -274,6 +286,9 @@ impl Default for CameraConfig {
             flutter_code: RASKAR_CODE.to_string(),
             parabolic_axis: Axis::X,
             parabolic_amplitude_px: 8.0,
+            psf_path: None,
+            psf_over: Default::default(),
+            psf_normalise: false,
         }
     }
 }
@@ -302,6 +317,16 @@ impl CameraConfig {
             c.fail("flutter_code", "has no open chop");
         }
         c.range("parabolic_amplitude_px", self.parabolic_amplitude_px, -200.0, 200.0);
+        match (&self.psf_path, self.kind) {
+            (None, CameraKind::Measured) => c.fail("psf_path", "the measured camera needs a PSF stack (.npy, (K, H, W, 3))"),
+            (Some(p), CameraKind::Measured) => {
+                if let Err(e) = super::measured::Stack::read(p, self.psf_normalise) {
+                    c.fail("psf_path", e);
+                }
+            }
+            (Some(_), k) => c.fail("psf_path", format!("only the measured camera reads a PSF stack, not {}", k.name())),
+            (None, _) => {}
+        }
         c.errors
     }
 }

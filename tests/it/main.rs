@@ -12,6 +12,7 @@ mod eval;
 mod figure;
 mod first_hour;
 mod generate;
+mod measured;
 mod panics;
 mod path_safety;
 mod psf_cli;

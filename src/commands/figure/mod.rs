@@ -121,6 +121,7 @@ fn label(kind: CameraKind) -> &'static str {
         CameraKind::PhaseCoded => "PHASE CODED (OURS)",
         CameraKind::Flutter => "FLUTTERED SHUTTER",
         CameraKind::Parabolic => "PARABOLIC MOTION",
+        CameraKind::Measured => "MEASURED PSFS",
     }
 }
 
