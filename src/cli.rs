@@ -29,6 +29,8 @@ pub enum Command {
         after_help = "Examples:\n  pipeline psf --psi 0:8:9 --out strip.png            lens PSF of the coded camera at 9 psi values\n  pipeline psf --psi 0,4,8 --out psfs.npy             (3, H, W, 3) float32, R G B, each channel sums to 1\n  pipeline psf --camera parabolic --window 9 --out k.png   the 9 sub-frame kernels of one exposure\n  pipeline psf --config optics.toml --psi 0:8:33      [optics] and [camera] tables from a file"
     )]
     Psf(crate::commands::psf::PsfArgs),
+    /// Measure a PSF stack from captures of a point source, for the `measured` camera.
+    Calibrate(crate::commands::calibrate::CalibrateArgs),
     /// Make coded-blur training data from videos with the default generate pipeline.
     #[command(
         after_help = "Examples:\n  pipeline generate clip.mp4 -o out/                       patches in WebDataset shards\n  pipeline generate clips/ -o out/ --set transforms.blur.camera.type=conventional\n  pipeline generate a.mp4 b.mkv -o out/ --shard-index 0 --shard-count 2\n  ffmpeg -i in.mov -f nut - | pipeline generate - -o out/   a stream on standard input\n\nThe default pipeline is pipelines/generate.toml (embedded); see it for every key."
@@ -121,6 +123,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     keep_freed_memory();
     match cli.command {
         Command::Psf(a) => commands::psf::command(a),
+        Command::Calibrate(a) => commands::calibrate::command(a),
         Command::Generate(a) => commands::generate::generate(a),
         Command::Run(a) => commands::generate::run(a),
         Command::Validate(a) => commands::validate::command(a),

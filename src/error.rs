@@ -19,7 +19,7 @@ pub enum Error {
     /// A file one of the format readers refused (PNG, tar, `.npy`, safetensors, JSON), named;
     /// the reader's own error is kept, typed, in `cause` and is part of the message (as in `Io`).
     #[error("{}: {cause}", path.display())]
-    Format { path: PathBuf, cause: FormatError },
+    Format { path: PathBuf, cause: Box<FormatError> },
     /// A stage of a pipeline failed; the cause is kept (and printed after it).
     #[error("stage {stage}")]
     Stage { stage: String, source: Box<Error> },
@@ -103,7 +103,7 @@ impl Error {
 
     /// A format reader's error, naming its file: `.map_err(Error::format(path))`.
     pub fn format<E: Into<FormatError>>(path: &std::path::Path) -> impl FnOnce(E) -> Error + '_ {
-        move |e| Error::Format { path: path.to_path_buf(), cause: e.into() }
+        move |e| Error::Format { path: path.to_path_buf(), cause: Box::new(e.into()) }
     }
 
     /// A video error, naming its file.

@@ -2,6 +2,7 @@
 //! runs and the summary it prints. `cli.rs` only parses and dispatches.
 
 pub mod bench;
+pub mod calibrate;
 #[cfg(feature = "infer")]
 pub mod deblur;
 #[cfg(all(feature = "infer", feature = "ffmpeg"))]

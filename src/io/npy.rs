@@ -65,7 +65,7 @@ pub fn read_f32(bytes: &[u8]) -> Result<(Vec<usize>, Vec<f32>), NpyError> {
         .collect::<Result<_, _>>()?;
     let body = &bytes[start + hlen..];
     let want = shape.iter().try_fold(1usize, |a, &d| a.checked_mul(d));
-    if body.len() % 4 != 0 || want != Some(body.len() / 4) {
+    if !body.len().is_multiple_of(4) || want != Some(body.len() / 4) {
         return Err(NpyError::Count { values: body.len() / 4, shape });
     }
     Ok((shape, body.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect()))

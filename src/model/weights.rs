@@ -220,7 +220,7 @@ impl Weights {
     /// # Errors
     /// Not safetensors; no architecture; a missing, misshapen, extra or non-finite weight (named).
     pub fn from_bytes(bytes: &[u8], name: &str) -> Result<Weights> {
-        Weights::check(bytes).map_err(|cause| Error::Format { path: name.into(), cause: cause.into() })
+        Weights::check(bytes).map_err(|cause| Error::Format { path: name.into(), cause: Box::new(cause.into()) })
     }
 
     fn check(bytes: &[u8]) -> Checked<Weights> {
@@ -313,7 +313,8 @@ impl Latest {
             Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(None),
             Err(e) => return Err(Error::Io { path: lp, cause: e }),
         };
-        let latest: Latest = serde_json::from_slice(&bytes).map_err(|e| Error::Format { path: lp.to_path_buf(), cause: e.into() })?;
+        let latest: Latest =
+            serde_json::from_slice(&bytes).map_err(|e| Error::Format { path: lp.to_path_buf(), cause: Box::new(e.into()) })?;
         let model = crate::io::paths::inside(dir, &latest.model, &lp, "model")?;
         let optimizer = crate::io::paths::inside(dir, &latest.optimizer, &lp, "optimizer")?;
         Ok(Some((latest, model, optimizer)))

@@ -62,7 +62,7 @@ impl Stack {
         if c != 3 || k == 0 || k > 4096 {
             return Err(format!("shape {shape:?}: a PSF stack is (K, H, W, 3) with 1 to 4096 entries"));
         }
-        if h % 2 == 0 || w % 2 == 0 || h > 1025 || w > 1025 {
+        if h.is_multiple_of(2) || w.is_multiple_of(2) || h > 1025 || w > 1025 {
             return Err(format!("entries of {h}x{w}: a PSF needs odd sides (its centre a pixel) of at most 1025"));
         }
         if let Some(i) = data.iter().position(|v| !v.is_finite() || *v < 0.0) {

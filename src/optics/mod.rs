@@ -6,6 +6,7 @@
 //!   sub-frames into N kernels; [`measured`]: PSF stacks read from `.npy`.
 //! - [`config`]: `[optics]` and `[camera]` with the paper's defaults.
 
+pub mod calibrate;
 pub mod camera;
 pub mod config;
 pub mod fft;

@@ -74,3 +74,73 @@ fn a_bad_stack_is_refused_naming_the_file_and_the_rule() {
         &["sources.video.max_frames=9", "transforms.blur.camera.type=\"measured\"", &path, "transforms.blur.camera.psf_normalise=true"],
     ));
 }
+
+/// Writes linear planes in [0, 1] as a 16-bit RGB PNG.
+fn write_png16(path: &std::path::Path, w: usize, h: usize, rgb: &[Vec<f32>; 3]) {
+    let mut s = pipeline::io::png::Samples { width: w, height: h, channels: 3, sixteen: true, data: vec![0; w * h * 6], expanded: None };
+    for i in 0..w * h {
+        for (c, plane) in rgb.iter().enumerate() {
+            s.set(i, c, plane[i]);
+        }
+    }
+    pipeline::io::png::write_samples(&mut std::fs::File::create(path).unwrap(), &s).unwrap();
+}
+
+#[test]
+fn calibrate_recovers_a_known_stack_from_noisy_shifted_point_source_captures() {
+    let d = scratch("calibrate");
+    let reference = d.join("reference.npy");
+    ok(&run(&["psf", "--camera", "phase_coded", "--window", "9", "--out", reference.to_str().unwrap()]));
+    let (shape, truth) = pipeline::io::npy::read_f32(&std::fs::read(&reference).unwrap()).unwrap();
+    let (k, side) = (shape[0], shape[1]);
+    // Nine captures of 96x80: the PSF times 0.9 / its largest value, its centre at (52, 35), over
+    // a dark level of 0.03, with Gaussian noise of 0.0001 (1/9000 of the peak: about a hundred
+    // frames of a point source averaged); a dark frame with the same noise.
+    let (w, h, (cx, cy), level, sigma) = (96, 80, (52usize, 35usize), 0.03f32, 0.0001f32);
+    let peak = truth.iter().copied().fold(0.0f32, f32::max);
+    let mut rng = pipeline::rng::Rng::new(9);
+    let mut noisy = |v: f32| (v + sigma * rng.normal() as f32).clamp(0.0, 1.0);
+    let caps = d.join("captures");
+    std::fs::create_dir_all(&caps).unwrap();
+    for e in 0..k {
+        let rgb: [Vec<f32>; 3] = std::array::from_fn(|c| {
+            let mut p = vec![level; w * h];
+            for y in 0..side {
+                for x in 0..side {
+                    p[(cy + y - side / 2) * w + cx + x - side / 2] += 0.9 / peak * truth[((e * side + y) * side + x) * 3 + c];
+                }
+            }
+            p.into_iter().map(&mut noisy).collect()
+        });
+        write_png16(&caps.join(format!("{e:02}.png")), w, h, &rgb);
+    }
+    let dark = d.join("dark.png");
+    write_png16(&dark, w, h, &std::array::from_fn(|_| (0..w * h).map(|_| noisy(level)).collect()));
+    let out = d.join("lens.npy");
+    let size = side.to_string();
+    let args = ["calibrate", caps.to_str().unwrap(), "--dark", dark.to_str().unwrap(), "--size", &size, "-o", out.to_str().unwrap()];
+    ok(&run(&args));
+    let (got_shape, got) = pipeline::io::npy::read_f32(&std::fs::read(&out).unwrap()).unwrap();
+    assert_eq!(got_shape, shape);
+    // Each entry and channel within 10% of its energy (L1) of the true PSF: the coded PSFs' faint
+    // halo (a sixth of the energy of some, spread over thousands of pixels) sits near the noise.
+    let mut worst = 0.0f64;
+    for e in 0..k {
+        for c in 0..3 {
+            let l1: f64 = (0..side * side)
+                .map(|i| (got[(e * side * side + i) * 3 + c] as f64 - truth[(e * side * side + i) * 3 + c] as f64).abs())
+                .sum();
+            worst = worst.max(l1);
+        }
+    }
+    assert!(worst < 0.1, "worst L1 distance {worst}");
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(d.join("lens.json")).unwrap()).unwrap();
+    assert_eq!(report["entries"].as_array().unwrap().len(), k);
+    assert!(d.join("lens.png").is_file());
+    // The stack feeds the measured camera; a second run does not replace it without --overwrite.
+    let o = run(&args);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("--overwrite"));
+    let path = format!("transforms.blur.camera.psf_path={:?}", out.to_str().unwrap());
+    ok(&generate(&d.join("shards"), &[FIXTURE], &["sources.video.max_frames=9", "transforms.blur.camera.type=\"measured\"", &path]));
+}
