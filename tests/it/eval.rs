@@ -133,3 +133,42 @@ fn eval_refuses_bad_keys_and_short_videos_by_name() {
     let o = run(&["eval", short.to_str().unwrap(), "-o", d.to_str().unwrap(), "--set", "eval.windows=[7]"]);
     assert!(!o.status.success() && stderr(&o).contains("eval-short.mp4") && stderr(&o).contains("fewer than one window"), "{}", stderr(&o));
 }
+
+#[test]
+fn eval_tables_shake_by_spread_and_reads_out_through_a_sensor() {
+    let d = scratch("eval_spread");
+    // The fixture labelled as camera shake: frames 39 to 51 (a segment of 13) moved 2 px a frame
+    // to the right, so the window of 9 around frame 44 spreads 16 px.
+    let clip = d.join("shaky.mp4");
+    std::fs::copy(FIXTURE, &clip).unwrap();
+    let shift: Vec<[f64; 2]> = (0..13).map(|j| [2.0 * j as f64, 0.0]).collect();
+    let label = serde_json::json!({ "kind": "shake", "extent_px": 24.0, "shift": shift });
+    let log: String = (39..52).map(|f| format!("{}\n", serde_json::json!({ "window": f, "motion": label }))).collect();
+    std::fs::write(d.join("shaky.motion.jsonl"), log).unwrap();
+    let eval = |out: &str, extra: &[&str]| {
+        let mut args = vec!["eval", clip.to_str().unwrap(), "--progress", "never", "--set", "eval.windows=[9]"];
+        args.extend(["--set", "eval.sigmas=[0]", "--set", "eval.windows_per_video=1", "--set", "eval.skip=40"]);
+        args.extend(["--set", "eval.crop=64", "--set", "eval.examples=0"]);
+        let o = d.join(out);
+        args.extend(["-o", o.to_str().unwrap()]);
+        args.extend(extra);
+        let r = run(&args);
+        assert!(r.status.success(), "{}", stderr(&r));
+        let json: serde_json::Value = serde_json::from_slice(&std::fs::read(o.join("eval.json")).unwrap()).unwrap();
+        (json, std::fs::read_to_string(o.join("eval.md")).unwrap())
+    };
+    let (ideal, md) = eval("ideal", &[]);
+    assert_eq!(ideal["records"][0]["spread_px"], 16.0);
+    let cells = ideal["per_spread"].as_array().unwrap();
+    assert_eq!(cells.len(), 1, "{cells:?}");
+    assert_eq!(
+        (cells[0]["motion"].as_str(), cells[0]["spread_px"][0].as_f64(), cells[0]["count"].as_u64()),
+        (Some("shake"), Some(10.0), Some(1))
+    );
+    assert!(md.contains("## Camera shake by spread") && md.contains("| shake | N=9 | 10-20 | 1 |"), "{md}");
+    // Through a sensor at ISO 3200 with a Bayer mosaic the same window reads out noisier.
+    let (sensor, md) = eval("sensor", &["--set", "eval.sensor.iso=3200"]);
+    let psnr = |j: &serde_json::Value| j["records"][0]["blurred"]["psnr_rgb"].as_f64().unwrap();
+    assert!(psnr(&sensor) < psnr(&ideal) - 1.0, "sensor {} ideal {}", psnr(&sensor), psnr(&ideal));
+    assert!(md.contains("Read-out: a sensor at ISO 3200") && md.contains("RGGB MOSAIC"), "{md}");
+}

@@ -79,6 +79,40 @@ pub struct EvalConfig {
     pub threads: usize,
     /// Low-rank blur error budget in 8-bit levels RMS, as the `coded_blur` stage's (0: exact).
     pub max_error: f64,
+    /// A sensor's read-out before the camera response (`[eval.sensor]`): shot and read noise at
+    /// one ISO, saturation, a Bayer mosaic; the AWGN of `sigmas` is added after it. Absent: the
+    /// paper's ideal read-out.
+    pub sensor: Option<EvalSensor>,
+}
+
+/// `[eval.sensor]`: the sensor of [`crate::imaging::sensor`] at one ISO.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct EvalSensor {
+    pub full_well: f64,
+    pub read_noise: f64,
+    pub iso: f64,
+    /// The colour filter array, demosaiced bilinearly; absent: no mosaic.
+    pub bayer: Option<crate::imaging::sensor::Bayer>,
+}
+
+impl Default for EvalSensor {
+    fn default() -> Self {
+        EvalSensor { full_well: 5000.0, read_noise: 3.0, iso: 800.0, bayer: Some(crate::imaging::sensor::Bayer::Rggb) }
+    }
+}
+
+impl EvalSensor {
+    /// The region's linear planes as the sensor reads them out (noise keyed by `key` and the
+    /// pixel's place in the frame).
+    pub fn capture(&self, planes: &[Vec<f32>; 3], (x, y, w, h): (usize, usize, usize, usize), key: u64) -> [Vec<f32>; 3] {
+        let s = crate::imaging::sensor::Sensor {
+            full_well: self.full_well,
+            read_noise: self.read_noise,
+            gain: self.iso / crate::stage::sensor::BASE_ISO,
+        };
+        s.capture(planes, w, h, (x, y), self.bayer, crate::rng::hash(&[key, crate::rng::hash_str("eval-sensor")]))
+    }
 }
 
 impl Default for EvalConfig {
@@ -96,6 +130,7 @@ impl Default for EvalConfig {
             curve: Curve::Srgb,
             threads: 0,
             max_error: crate::stage::coded_blur::DEFAULT_MAX_ERROR,
+            sensor: None,
         }
     }
 }
@@ -129,6 +164,11 @@ impl EvalFile {
             c.range_usize("crop", e.crop, 11, 16384);
         }
         c.range("max_error", e.max_error, 0.0, 255.0);
+        if let Some(s) = &e.sensor {
+            c.range("sensor.full_well", s.full_well, 10.0, 1e7);
+            c.range("sensor.read_noise", s.read_noise, 0.0, 1000.0);
+            c.range("sensor.iso", s.iso, 25.0, 409_600.0);
+        }
         let mut errs = c.errors;
         errs.extend(self.camera.validate("camera"));
         errs.extend(self.optics.validate("optics"));

@@ -206,7 +206,10 @@ pub fn run(
                 let truth =
                     shifts.map(|sh| (crate::imaging::truth::window_kernel(&mut s.blurrers[ni], &sh).0, mid.linear_crop(rx, ry, rw, rh)));
                 for &sigma in &e.sigmas {
-                    let blurred = read_out(&blur, (rx, ry, rw, rh), &s.enc, sigma, throughput, key);
+                    let blurred = match &e.sensor {
+                        Some(sn) => read_out(&sn.capture(&blur, (rx, ry, rw, rh), key), (rx, ry, rw, rh), &s.enc, sigma, throughput, key),
+                        None => read_out(&blur, (rx, ry, rw, rh), &s.enc, sigma, throughput, key),
+                    };
                     let deblurred = run_frame(net, &blurred, rw, rh, tiling);
                     let (qb, qd) = (quality(&blurred, &sharp, rw, rh), quality(&deblurred, &sharp, rw, rh));
                     let bound = truth.as_ref().map(|(k, lin)| {

@@ -107,6 +107,15 @@ pub fn markdown(r: &EvalReport) -> String {
         r.region[1],
         r.convention
     );
+    if let Some(sn) = &r.config.eval.sensor {
+        s.push_str(&format!(
+            "Read-out: a sensor at ISO {} (full well {} e-, read noise {} e-, {}), then sigma\n\n",
+            sn.iso,
+            sn.full_well,
+            sn.read_noise,
+            sn.bayer.map_or("no mosaic".to_string(), |b| format!("{b:?} mosaic, bilinear demosaicing").to_uppercase())
+        ));
+    }
     s.push_str(&format!("## Table 1 layout: PSNR dB / SSIM, mean over sigma in {{{}}}\n\n", sig.join(", ")));
     s.push_str(&rows(&r.table, false, r.versus.as_ref()));
     s.push_str("\n## Per noise level\n\n");
