@@ -133,7 +133,7 @@ fn default_window() -> usize {
 }
 
 impl StageConfig for BlurConfig {
-    super::wiring!(transform, LinearFrames -> Samples);
+    super::wiring!(transform, TaggedFrames -> Samples);
     fn validate(&self, key: &str) -> Vec<ConfigError> {
         let mut c = Checker::new(key);
         c.range_usize("window", self.window, 1, 64);
@@ -175,15 +175,16 @@ impl StageConfig for BlurConfig {
         let cam = self.camera_shared();
         let blurrer = Blurrer::new(cam, self.window, self.threads, self.max_error)?;
         let stride = self.stride.unwrap_or(self.window);
-        let mut t = CodedBlur::new(blurrer, stride, ctx.seed, ctx.crop.clone(), ctx.counters.clone());
+        let mut t = CameraBlur::new(blurrer, stride, ctx.seed, ctx.crop.clone(), ctx.counters.clone());
         t.tile = self.tile;
         t.times = burst_times(self.burst.count(self.window));
         Ok(Built::Transform(Box::new(t)))
     }
 }
 
-/// The `coded_blur` stage.
-pub struct CodedBlur {
+/// The `coded_blur` stage: windows of frames through a camera (any of them: the TOML name is
+/// the paper's, the stage runs the conventional, flutter, parabolic and measured cameras too).
+pub struct CameraBlur {
     pub blurrer: Blurrer,
     pub stride: usize,
     pub seed: u64,
@@ -196,13 +197,14 @@ pub struct CodedBlur {
     pub times: Vec<f64>,
     buf: VecDeque<(u64, Arc<Frame>)>,
     next_start: u64,
-    window: u64,
+    /// Windows emitted so far for the current input (the next window's index).
+    windows_done: u64,
     input: Option<Arc<Input>>,
 }
 
-impl CodedBlur {
-    pub fn new(blurrer: Blurrer, stride: usize, seed: u64, crop_first: Option<Selector>, counters: Arc<Counters>) -> CodedBlur {
-        CodedBlur {
+impl CameraBlur {
+    pub fn new(blurrer: Blurrer, stride: usize, seed: u64, crop_first: Option<Selector>, counters: Arc<Counters>) -> CameraBlur {
+        CameraBlur {
             blurrer,
             stride,
             seed,
@@ -212,7 +214,7 @@ impl CodedBlur {
             times: Vec::new(),
             buf: VecDeque::new(),
             next_start: 0,
-            window: 0,
+            windows_done: 0,
             input: None,
         }
     }
@@ -226,7 +228,7 @@ impl CodedBlur {
         let pairs = match &self.crop_first {
             Some(sel) => {
                 let pos = sel
-                    .positions(self.seed, input.id, self.window, w, h)
+                    .positions(self.seed, input.id, self.windows_done, w, h)
                     .map_err(|e| StageError::Input(input.clone(), format!("{}: {e}", input.path)))?;
                 let lqs = self.blurrer.blur_patches(&frames, &pos, sel.size);
                 pos.into_iter()
@@ -248,7 +250,7 @@ impl CodedBlur {
         let kernels = self.blurrer.kernels();
         let sample = Sample {
             input: input.clone(),
-            window: self.window,
+            window: self.windows_done,
             first_frame: first,
             frames: n,
             camera: self.blurrer.camera.kind(),
@@ -266,7 +268,7 @@ impl CodedBlur {
             pairs,
         };
         Counters::add(&self.counters.windows, 1);
-        self.window += 1;
+        self.windows_done += 1;
         out.send(Item::Sample(Box::new(sample)));
         Ok(())
     }
@@ -297,7 +299,7 @@ fn burst(frames: &[Arc<Frame>], times: &[f64], x: usize, y: usize, w: usize, h: 
         .collect()
 }
 
-impl Transform for CodedBlur {
+impl Transform for CameraBlur {
     fn details(&self) -> Option<serde_json::Value> {
         let b = &self.blurrer;
         Some(serde_json::json!({
@@ -312,7 +314,7 @@ impl Transform for CodedBlur {
             Item::Begin(input, info) => {
                 self.buf.clear();
                 self.next_start = 0;
-                self.window = 0;
+                self.windows_done = 0;
                 self.input = Some(input.clone());
                 out.send(Item::Begin(input, info));
             }
@@ -331,7 +333,9 @@ impl Transform for CodedBlur {
             Item::End(input, res) => {
                 self.buf.clear();
                 let res = match res {
-                    Ok(()) if self.window == 0 => Err(format!("{}: shorter than one window of {} frames", input.path, self.blurrer.n)),
+                    Ok(()) if self.windows_done == 0 => {
+                        Err(format!("{}: shorter than one window of {} frames", input.path, self.blurrer.n))
+                    }
                     other => other,
                 };
                 out.send(Item::End(input, res));

@@ -1,4 +1,8 @@
-//! `linearize`: marks frames as linear light through a transfer curve.
+//! `linearize`: tags frames with the transfer curve that makes their values linear light. No
+//! pixel changes here: the conversion is by table where a later stage reads a pixel
+//! ([`Frame::linear_row`]), so patch mode converts only its patches. The stage's type name says
+//! what the frames are from here on (linear light, to whoever reads them); the Rust names say
+//! what it does (`CurveTag`, [`super::Kind::TaggedFrames`]).
 
 use super::{BuildContext, Built, Emit, StageConfig, StageResult, Transform};
 use crate::checks::ConfigError;
@@ -20,7 +24,7 @@ fn default_curve() -> Curve {
 }
 
 impl StageConfig for LinearizeConfig {
-    super::wiring!(transform, EncodedFrames -> LinearFrames);
+    super::wiring!(transform, EncodedFrames -> TaggedFrames);
     fn validate(&self, _key: &str) -> Vec<ConfigError> {
         Vec::new()
     }
@@ -28,19 +32,19 @@ impl StageConfig for LinearizeConfig {
         true
     }
     fn build(&self, _ctx: &BuildContext) -> crate::Result<Built> {
-        Ok(Built::Transform(Box::new(Linearize::new(self.curve))))
+        Ok(Built::Transform(Box::new(CurveTag::new(self.curve))))
     }
 }
 
-/// `linearize`: marks frames as linear light through `curve`. The pixels are converted lazily,
-/// by table, where they are read ([`Frame::linear_row`]): patch mode converts only its patches.
-pub struct Linearize {
+/// `linearize`: tags frames with `curve`. The pixels are converted lazily, by table, where they
+/// are read ([`Frame::linear_row`]): patch mode converts only its patches.
+pub struct CurveTag {
     curve: Curve,
 }
 
-impl Linearize {
-    pub fn new(curve: Curve) -> Linearize {
-        Linearize { curve }
+impl CurveTag {
+    pub fn new(curve: Curve) -> CurveTag {
+        CurveTag { curve }
     }
 
     /// The same pixels, tagged with the curve.
@@ -49,7 +53,7 @@ impl Linearize {
     }
 }
 
-impl Transform for Linearize {
+impl Transform for CurveTag {
     fn process(&mut self, item: Item, out: &mut Emit) -> StageResult {
         let item = match item {
             Item::Frame(input, i, f) => Item::Frame(input, i, Arc::new(self.apply(&f))),

@@ -157,8 +157,11 @@ impl Role {
 /// What flows on an edge; checked before any thread starts.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Kind {
+    /// Frames as their source made them: encoded values (8 or 16 bits, or float), no curve.
     EncodedFrames,
-    LinearFrames,
+    /// The same values tagged with their transfer curve (`linearize`): whoever reads them gets
+    /// linear light, converted by table where it is read (patch mode converts only its patches).
+    TaggedFrames,
     Samples,
 }
 
@@ -166,7 +169,7 @@ impl Kind {
     pub fn name(self) -> &'static str {
         match self {
             Kind::EncodedFrames => "encoded frames",
-            Kind::LinearFrames => "linear frames",
+            Kind::TaggedFrames => "frames tagged with their transfer curve (read as linear light)",
             Kind::Samples => "samples",
         }
     }
