@@ -80,6 +80,7 @@ pub enum FormatError {
     Tar(#[from] crate::io::tar::TarError),
     #[error("{0}")]
     Npy(#[from] crate::io::npy::NpyError),
+    #[cfg(feature = "infer")]
     #[error("{0}")]
     Weights(#[from] crate::model::weights::WeightsError),
     #[error("{0}")]
