@@ -167,7 +167,7 @@ fn eval_tables_shake_by_spread_and_reads_out_through_a_sensor() {
     );
     assert!(md.contains("## Camera shake by spread") && md.contains("| shake | N=9 | 10-20 | 1 |"), "{md}");
     // Through a sensor at ISO 3200 with a Bayer mosaic the same window reads out noisier.
-    let (sensor, md) = eval("sensor", &["--set", "eval.sensor.iso=3200"]);
+    let (sensor, md) = eval("sensor", &["--set", "eval.sensor.iso=3200", "--set", "eval.sensor.bayer=\"rggb\""]);
     let psnr = |j: &serde_json::Value| j["records"][0]["blurred"]["psnr_rgb"].as_f64().unwrap();
     assert!(psnr(&sensor) < psnr(&ideal) - 1.0, "sensor {} ideal {}", psnr(&sensor), psnr(&ideal));
     assert!(md.contains("Read-out: a sensor at ISO 3200") && md.contains("RGGB MOSAIC"), "{md}");

@@ -92,13 +92,13 @@ pub struct EvalSensor {
     pub full_well: f64,
     pub read_noise: f64,
     pub iso: f64,
-    /// The colour filter array, demosaiced bilinearly; absent: no mosaic.
+    /// The colour filter array (`rggb`, ...), demosaiced bilinearly; absent: no mosaic.
     pub bayer: Option<crate::imaging::sensor::Bayer>,
 }
 
 impl Default for EvalSensor {
     fn default() -> Self {
-        EvalSensor { full_well: 5000.0, read_noise: 3.0, iso: 800.0, bayer: Some(crate::imaging::sensor::Bayer::Rggb) }
+        EvalSensor { full_well: 5000.0, read_noise: 3.0, iso: 800.0, bayer: None }
     }
 }
 
@@ -243,6 +243,9 @@ pub struct SpreadCell {
     pub count: usize,
     pub blurred: Quality,
     pub deblurred: Quality,
+    /// The mean Wiener bound told the true kernel, where every window of the bin has one.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub bound: Option<Quality>,
 }
 
 /// The spread bins of the shake table, pixels: 0-10, 10-20, 20-40, 40-60, 60 and more.

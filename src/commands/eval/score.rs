@@ -56,6 +56,7 @@ pub(crate) fn spread_cells(records: &[Record], windows: &[usize]) -> Vec<SpreadC
                     count: sel.len(),
                     blurred: mean_quality(&sel.iter().map(|r| &r.blurred).collect::<Vec<_>>()),
                     deblurred: mean_quality(&sel.iter().map(|r| &r.deblurred).collect::<Vec<_>>()),
+                    bound: sel.iter().map(|r| r.bound.as_ref()).collect::<Option<Vec<_>>>().map(|b| mean_quality(&b)),
                 });
             }
         }

@@ -72,7 +72,7 @@ fn rows(cells: &[Cell], with_sigma: bool, versus: Option<&Versus>) -> String {
 /// The shake table: per motion, N and spread bin, PSNR dB / SSIM (RGB) and the gain.
 fn spread_rows(cells: &[SpreadCell]) -> String {
     let mut s = String::from(
-        "| motion | N | spread px | windows | blurred input (RGB) | deblurred (RGB) | gain dB |\n|---|---|---|---|---|---|---|\n",
+        "| motion | N | spread px | windows | blurred input (RGB) | deblurred (RGB) | gain dB | Wiener, true kernel: gain dB |\n|---|---|---|---|---|---|---|---|\n",
     );
     for c in cells {
         let range = if c.spread_px[1].is_finite() {
@@ -81,13 +81,14 @@ fn spread_rows(cells: &[SpreadCell]) -> String {
             format!("{} and more", c.spread_px[0])
         };
         s.push_str(&format!(
-            "| {} | N={} | {range} | {} | {} | {} | {:+.2} |\n",
+            "| {} | N={} | {range} | {} | {} | {} | {:+.2} | {} |\n",
             c.motion,
             c.window,
             c.count,
             pair(&c.blurred, false),
             pair(&c.deblurred, false),
-            c.deblurred.psnr_rgb - c.blurred.psnr_rgb
+            c.deblurred.psnr_rgb - c.blurred.psnr_rgb,
+            c.bound.as_ref().map_or("-".into(), |b| format!("{:+.2}", b.psnr_rgb - c.blurred.psnr_rgb))
         ));
     }
     s
