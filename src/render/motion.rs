@@ -187,6 +187,41 @@ struct Object {
     path: Vec<((f64, f64), f64)>,
 }
 
+impl Object {
+    /// One object of an `objects` window of `n` frames of a `(fw, fh)` view: a cut-out of
+    /// `sprites` (or a shape cut from the image when there are none), its size, straight path,
+    /// spin and extent drawn from `cfg`. Returns it with its extent.
+    fn draw(
+        cfg: &MotionConfig,
+        n: usize,
+        (fw, fh): (f64, f64),
+        (img, iw, ih): (&[Vec<f32>; 3], usize, usize),
+        sprites: &[std::sync::Arc<Sprite>],
+        scale: f64,
+        rng: &mut Rng,
+    ) -> (Object, f64) {
+        let side = rng.range(cfg.object_size[0], cfg.object_size[1]) * fw.min(fh);
+        let (sprite, sc) = if sprites.is_empty() {
+            let (sw, sh) = ((side * rng.range(0.6, 1.4)).max(4.0) as usize, (side * rng.range(0.6, 1.4)).max(4.0) as usize);
+            let src = (rng.range(0.0, (iw as f64 - sw as f64).max(0.0)), rng.range(0.0, (ih as f64 - sh as f64).max(0.0)));
+            (std::sync::Arc::new(Sprite::cut(img, iw, ih, sw, sh, src, rng)), 1.0)
+        } else {
+            let s = sprites[rng.below(sprites.len())].clone();
+            let sc = side / s.w.max(s.h) as f64;
+            (s, sc)
+        };
+        let e = cfg.extent(rng, scale);
+        let a = rng.range(0.0, std::f64::consts::TAU);
+        let mid = (rng.range(0.0, fw), rng.range(0.0, fh));
+        let radius = sc * sprite.w.max(sprite.h) as f64 / 2.0;
+        // A spin that moves the rim by at most half the object's own extent.
+        let spin = rng.range(-0.5, 0.5) * e / radius.max(1.0);
+        let phi0 = rng.range(0.0, std::f64::consts::TAU);
+        let path = (0..n).map(|j| ((mid.0 + tau(j, n) * e * a.cos(), mid.1 + tau(j, n) * e * a.sin()), phi0 + tau(j, n) * spin)).collect();
+        (Object { sprite, scale: sc, path }, e)
+    }
+}
+
 /// The motion of one window: per frame, the background's pose, and the objects over it.
 #[derive(Debug, Clone)]
 pub struct WindowMotion {
@@ -303,28 +338,9 @@ impl WindowMotion {
                 }
                 let count = cfg.objects[0] + rng.below(cfg.objects[1] - cfg.objects[0] + 1);
                 for _ in 0..count {
-                    let side = rng.range(cfg.object_size[0], cfg.object_size[1]) * fw.min(fh);
-                    let (sprite, sc) = if sprites.is_empty() {
-                        let (sw, sh) = ((side * rng.range(0.6, 1.4)).max(4.0) as usize, (side * rng.range(0.6, 1.4)).max(4.0) as usize);
-                        let src = (rng.range(0.0, (iw as f64 - sw as f64).max(0.0)), rng.range(0.0, (ih as f64 - sh as f64).max(0.0)));
-                        (std::sync::Arc::new(Sprite::cut(img, iw, ih, sw, sh, src, rng)), 1.0)
-                    } else {
-                        let s = sprites[rng.below(sprites.len())].clone();
-                        let sc = side / s.w.max(s.h) as f64;
-                        (s, sc)
-                    };
-                    let e = cfg.extent(rng, scale);
-                    m.extent_px = m.extent_px.max(e);
-                    let a = rng.range(0.0, std::f64::consts::TAU);
-                    let mid = (rng.range(0.0, fw), rng.range(0.0, fh));
-                    let radius = sc * sprite.w.max(sprite.h) as f64 / 2.0;
-                    // A spin that moves the rim by at most half the object's own extent.
-                    let spin = rng.range(-0.5, 0.5) * e / radius.max(1.0);
-                    let phi0 = rng.range(0.0, std::f64::consts::TAU);
-                    let path = (0..n)
-                        .map(|j| ((mid.0 + tau(j, n) * e * a.cos(), mid.1 + tau(j, n) * e * a.sin()), phi0 + tau(j, n) * spin))
-                        .collect();
-                    m.objects.push(Object { sprite, scale: sc, path });
+                    let o = Object::draw(cfg, n, (fw, fh), (img, iw, ih), sprites, scale, rng);
+                    m.extent_px = m.extent_px.max(o.1);
+                    m.objects.push(o.0);
                 }
             }
         }

@@ -56,19 +56,9 @@ pub struct TrainOptions {
     pub stop_after: Option<usize>,
 }
 
-/// Runs training from shards.
-///
-/// # Errors
-/// Bad shards (named), an unwritable output folder, or a non-finite loss (naming the step; the
-/// last good checkpoint stays).
-pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
-    // Every value error first, all at once (the shards are only looked for in a valid file).
-    let errs = cfg.validate();
-    if !errs.is_empty() {
-        return Err(Error::Config(errs));
-    }
-    // Shards that match nothing are a usage error naming the key, found before the output
-    // folder is made.
+/// The shards of `data.shards`: a pattern or folder that matches nothing is a usage error naming
+/// the key, found before the output folder is made.
+fn find_shards(cfg: &TrainConfig) -> Result<Vec<std::path::PathBuf>> {
     let shards = crate::io::paths::expand_paths(&cfg.data.shards, &["tar"]).map_err(|e| match e {
         Error::Io { path, cause } if cause.kind() == std::io::ErrorKind::NotFound => {
             Error::Usage(format!("data.shards: {}: no such folder", path.display()))
@@ -82,6 +72,39 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
     if let Some(p) = shards.iter().find(|p| !p.exists()) {
         return Err(Error::Usage(format!("data.shards: {}: no such file or folder", p.display())));
     }
+    Ok(shards)
+}
+
+/// Replays the data order up to a resumed step saved without its data position, remembering the
+/// batches BatchNorm is recalibrated from. False when a signal stopped it.
+fn replay(t: &mut Trainer, stream: &mut Stream, cfg: &TrainConfig) -> Result<bool> {
+    for step in 0..t.step {
+        if crate::signal::interrupted() {
+            return Ok(false);
+        }
+        let batch = stream.batch(cfg.optim.batch)?;
+        if step + cfg.validate.bn_batches >= t.step {
+            t.remember(&batch);
+        }
+    }
+    t.resumed_data = Some(format!("replayed {} steps (no data position saved with the checkpoint)", t.step));
+    Ok(true)
+}
+
+const NO_VALIDATION: &str = "nothing is validated and the curves have no validation panel; raise data.val_fraction or give more inputs";
+
+/// Runs training from shards.
+///
+/// # Errors
+/// Bad shards (named), an unwritable output folder, or a non-finite loss (naming the step; the
+/// last good checkpoint stays).
+pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
+    // Every value error first, all at once (the shards are only looked for in a valid file).
+    let errs = cfg.validate();
+    if !errs.is_empty() {
+        return Err(Error::Config(errs));
+    }
+    let shards = find_shards(cfg)?;
     let mut t = Trainer::new(cfg, opts)?;
     // Where the data stream stood at the resumed checkpoint; without it (a checkpoint of an
     // earlier version, other shards) the data order is replayed up to the step instead.
@@ -115,12 +138,8 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
     let val: Vec<Pair> = val.finish().into_iter().map(|(i, raw)| raw.decode(&shards[i], size)).collect::<Result<_>>()?;
     if val.is_empty() && cfg.data.val_fraction > 0.0 {
         // The split is by input: with few inputs, a fraction can hold none of them.
-        eprintln!(
-            "warning: no input fell in the validation split (data.val_fraction {} of {} inputs): nothing is validated and \
-             the curves have no validation panel; raise data.val_fraction or give more inputs",
-            cfg.data.val_fraction,
-            t.train_inputs.len()
-        );
+        let (f, n) = (cfg.data.val_fraction, t.train_inputs.len());
+        eprintln!("warning: no input fell in the validation split (data.val_fraction {f} of {n} inputs): {NO_VALIDATION}");
     }
     t.val = val;
     if t.train_inputs.is_empty() {
@@ -138,18 +157,9 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
         drop(found);
         t.resumed_data = Some(format!("restored from {}", StreamState::path(&t.dir, t.step).display()));
     } else if t.step > 0 {
-        // Replay the data order up to the resumed step, remembering the batches BatchNorm is
-        // recalibrated from.
-        for step in 0..t.step {
-            if crate::signal::interrupted() {
-                return Err(stopped("replaying the data order up to the resumed step"));
-            }
-            let batch = stream.batch(cfg.optim.batch)?;
-            if step + cfg.validate.bn_batches >= t.step {
-                t.remember(&batch);
-            }
+        if !replay(&mut t, &mut stream, cfg)? {
+            return Err(stopped("replaying the data order up to the resumed step"));
         }
-        t.resumed_data = Some(format!("replayed {} steps (no data position saved with the checkpoint)", t.step));
     }
     if let Some(how) = &t.resumed_data {
         eprintln!("resuming after step {}: the data order {how}", t.step);

@@ -367,6 +367,32 @@ pub struct DeblurArgs {
     pub file: ConfigArgs,
 }
 
+/// The usage errors of the paths, found before anything is made: `--burst` out of range, the
+/// output being the input, an input that names nothing, `--burst` into one image file. Returns
+/// the kind of output.
+fn check_paths(input: &Path, out: &Path, burst: Option<usize>) -> Result<OutKind> {
+    if let Some(k) = burst.filter(|k| !(2..=64).contains(k)) {
+        return Err(Error::Usage(format!("--burst {k}: the number of frames per capture must be 2 to 64")));
+    }
+    let same = input.canonicalize().ok().zip(out.canonicalize().ok()).is_some_and(|(a, b)| a == b) || input == out;
+    if same {
+        return Err(Error::Usage(format!("{}: the output is the input; choose another output path", out.display())));
+    }
+    // A path that names nothing (and is no glob) is a usage error: it used to leave an empty
+    // folder named like the output image.
+    if !input.to_string_lossy().contains('*') && std::fs::symlink_metadata(input).is_err() && input != Path::new("-") {
+        return Err(Error::Usage(format!("{}: no such file or folder", input.display())));
+    }
+    let kind = output_kind(input, out)?;
+    if burst.is_some() && kind == OutKind::Image {
+        return Err(Error::Usage(format!(
+            "{}: --burst writes a folder per image (OUTPUT/{{name}}/00.png ...); give a folder, not an image file",
+            out.display()
+        )));
+    }
+    Ok(kind)
+}
+
 /// Runs `pipeline deblur`.
 ///
 /// # Errors
@@ -374,26 +400,7 @@ pub struct DeblurArgs {
 pub fn command(a: DeblurArgs) -> anyhow::Result<()> {
     let DeblurArgs { input, out, model, camera, tile, overlap, lossless, burst, overwrite, file } = a;
     let camera = camera.map(|c| if c == "conventional" { CameraKind::Conventional } else { CameraKind::PhaseCoded });
-    if let Some(k) = burst.filter(|k| !(2..=64).contains(k)) {
-        return Err(Error::Usage(format!("--burst {k}: the number of frames per capture must be 2 to 64")).into());
-    }
-    let same = input.canonicalize().ok().zip(out.canonicalize().ok()).is_some_and(|(a, b)| a == b) || input == out;
-    if same {
-        return Err(Error::Usage(format!("{}: the output is the input; choose another output path", out.display())).into());
-    }
-    // A path that names nothing (and is no glob) is a usage error, found before anything is
-    // made: it used to leave an empty folder named like the output image.
-    if !input.to_string_lossy().contains('*') && std::fs::symlink_metadata(&input).is_err() && input != Path::new("-") {
-        return Err(Error::Usage(format!("{}: no such file or folder", input.display())).into());
-    }
-    let kind = output_kind(&input, &out)?;
-    if burst.is_some() && kind == OutKind::Image {
-        return Err(Error::Usage(format!(
-            "{}: --burst writes a folder per image (OUTPUT/{{name}}/00.png ...); give a folder, not an image file",
-            out.display()
-        ))
-        .into());
-    }
+    let kind = check_paths(&input, &out, burst)?;
     let inputs = inputs_of(&input, kind)?;
     let outputs = outputs_of(&inputs, &out, kind, burst);
     crate::io::paths::refuse_replacing_inputs(&outputs, &inputs)?;
@@ -446,16 +453,8 @@ pub fn command(a: DeblurArgs) -> anyhow::Result<()> {
     if r.frames == 0 && !r.failed.is_empty() {
         eprintln!("nothing deblurred with {} -> {}", r.model, out.display());
     } else {
-        eprintln!(
-            "{} frames of {}x{} in {:.1} s ({:.2} frames/s) with {} -> {}",
-            r.frames,
-            r.width,
-            r.height,
-            r.seconds,
-            r.frames_per_s,
-            r.model,
-            out.display()
-        );
+        let (n, w, h, s, fps) = (r.frames, r.width, r.height, r.seconds, r.frames_per_s);
+        eprintln!("{n} frames of {w}x{h} in {s:.1} s ({fps:.2} frames/s) with {} -> {}", r.model, out.display());
     }
     if !r.failed.is_empty() {
         return Err(crate::Error::InputsFailed { n: r.failed.len(), report: rp }.into());

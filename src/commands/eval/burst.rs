@@ -7,7 +7,7 @@
 //! are closer to the first and last sub-frames than to the last and first (50% is a coin).
 
 use super::EvalFile;
-use crate::imaging::{read_out, to_8bit};
+use crate::imaging::to_8bit;
 use crate::io::paths::expand_paths;
 use crate::io::write_atomic;
 use crate::metrics::quality;
@@ -113,15 +113,11 @@ pub fn run(
     std::fs::create_dir_all(out).map_err(|err| Error::Io { path: out.to_path_buf(), cause: err })?;
     let mut s = super::Setup::new(f)?;
     let (throughput, half, spacing, tiling) = (s.throughput, s.half, s.spacing, s.tiling);
-    let total = (paths.len() * e.windows_per_video * e.windows.len() * e.sigmas.len()) as u64;
-    let bar = crate::progress::Bar::new(progress, "eval --burst", "windows", Some(total));
+    let bar = super::score::windows_bar(progress, "eval --burst", e, paths.len());
     let mut records = Vec::new();
     for (vi, path) in paths.iter().enumerate() {
         let first = e.skip as u64;
-        let frames = s.frames(path, e)?;
-        let (w, h) = (frames[0].width, frames[0].height);
-        let [rx, ry, rw, rh] = super::region(w, h, e.crop);
-        let log = crate::imaging::truth::MotionLog::read(path)?;
+        let (frames, [rx, ry, rw, rh], log) = s.open(path, e)?;
         let centres = (0..e.windows_per_video as u64).map(|k| half + k * spacing).take_while(|&c| c + half < frames.len() as u64);
         for c in centres {
             let motion = log.as_ref().and_then(|l| l.kind(first + c)).unwrap_or("unlabelled").to_string();
@@ -133,7 +129,7 @@ pub fn run(
                 let key = hash(&[f.seed, vi as u64, first + c, n as u64, hash_str("eval-noise")]);
                 let times: Vec<f32> = (0..n).map(|k| (k as f32 + 0.5) / n as f32).collect();
                 for &sigma in &e.sigmas {
-                    let blurred = read_out(&blur, (rx, ry, rw, rh), &s.enc, sigma, throughput, key);
+                    let blurred = e.read_out(&blur, (rx, ry, rw, rh), &s.enc, sigma, throughput, key);
                     let outs = run_frame_burst(net, &blurred, rw, rh, tiling, &times);
                     let psnr = |img: &[u8], k: usize| quality(img, &sharp[k], rw, rh).psnr_rgb.min(99.0);
                     let burst: Vec<f64> = (0..n).map(|k| psnr(&outs[k], k)).collect();

@@ -14,7 +14,7 @@ pub mod burst;
 mod score;
 mod table;
 
-pub(crate) use score::{read_frames, region, Setup};
+pub(crate) use score::{read_frames, Setup};
 pub use score::{run, GAP, LABEL_H};
 pub use table::markdown;
 
@@ -99,6 +99,25 @@ pub struct EvalSensor {
 impl Default for EvalSensor {
     fn default() -> Self {
         EvalSensor { full_well: 5000.0, read_noise: 3.0, iso: 800.0, bayer: None }
+    }
+}
+
+impl EvalConfig {
+    /// The 8-bit capture of a blurred region (linear planes): through the sensor if there is
+    /// one, then sigma's AWGN and the curve ([`read_out`]).
+    pub fn read_out(
+        &self,
+        blur: &[Vec<f32>; 3],
+        region: (usize, usize, usize, usize),
+        enc: &crate::optics::transfer::Encoder,
+        sigma: f64,
+        throughput: f64,
+        key: u64,
+    ) -> Vec<u8> {
+        match &self.sensor {
+            Some(sn) => read_out(&sn.capture(blur, region, key), region, enc, sigma, throughput, key),
+            None => read_out(blur, region, enc, sigma, throughput, key),
+        }
     }
 }
 
@@ -313,6 +332,7 @@ pub const EVAL_TOML: &str = include_str!("../../../pipelines/eval.toml");
 
 #[cfg(test)]
 mod tests {
+    use super::score::region;
     use super::*;
 
     #[test]

@@ -130,6 +130,25 @@ impl Setup {
         })
     }
 
+    /// The frames of `path` every window of `e` reads, the region scored and the clip's motion
+    /// log (if it has one).
+    ///
+    /// # Errors
+    /// As [`Setup::frames`]; a frame too small to score.
+    pub(crate) fn open(
+        &self,
+        path: &Path,
+        e: &EvalConfig,
+    ) -> Result<(Vec<Arc<Frame>>, [usize; 4], Option<crate::imaging::truth::MotionLog>)> {
+        let frames = self.frames(path, e)?;
+        let (w, h) = (frames[0].width, frames[0].height);
+        let reg = region(w, h, e.crop);
+        if reg[2] < 11 || reg[3] < 11 {
+            return Err(Error::File { path: path.to_path_buf(), why: format!("{w}x{h} is too small to score (SSIM needs 11x11)") });
+        }
+        Ok((frames, reg, crate::imaging::truth::MotionLog::read(path)?))
+    }
+
     /// The frames of `path` every window of `e` reads (after `e.skip`), tagged linear.
     ///
     /// # Errors
@@ -167,31 +186,17 @@ pub fn run(
     crate::io::make_dir_in(out, Path::new("examples"))?;
     let mut s = Setup::new(f)?;
     let (throughput, half, spacing, tiling) = (s.throughput, s.half, s.spacing, s.tiling);
-    let total = (paths.len() * e.windows_per_video * e.windows.len() * e.sigmas.len()) as u64;
-    let bar = crate::progress::Bar::new(progress, "eval", "windows", Some(total));
+    let bar = windows_bar(progress, "eval", e, paths.len());
     let top_sigma = e.sigmas.iter().copied().fold(f64::NEG_INFINITY, f64::max);
     let mut records = Vec::new();
-    // Examples spread evenly over the videos (different content, not N after N of the first
-    // clip), each at its video's first sharp frame and the largest sigma: the middle window
-    // length, then the next ones where a video gets more than one.
-    let mut example_slots: Vec<(usize, usize)> = Vec::new();
-    for i in 0..e.examples {
-        let vi = i * paths.len() / e.examples;
-        let earlier = example_slots.iter().filter(|s| s.0 == vi).count();
-        example_slots.push((vi, e.windows[(e.windows.len() / 2 + earlier) % e.windows.len()]));
-    }
+    let example_slots = example_slots(e, paths.len());
     let mut reg = [0; 4];
     for (vi, path) in paths.iter().enumerate() {
         let first = e.skip as u64;
-        let frames = s.frames(path, e)?;
-        let (w, h) = (frames[0].width, frames[0].height);
-        reg = region(w, h, e.crop);
+        let (frames, r, log) = s.open(path, e)?;
+        reg = r;
         let [rx, ry, rw, rh] = reg;
-        if rw < 11 || rh < 11 {
-            return Err(Error::File { path: path.to_path_buf(), why: format!("{w}x{h} is too small to score (SSIM needs 11x11)") });
-        }
         let video = path.display().to_string();
-        let log = crate::imaging::truth::MotionLog::read(path)?;
         let centres = (0..e.windows_per_video as u64).map(|k| half + k * spacing).take_while(|&c| c + half < frames.len() as u64);
         for (ci, c) in centres.enumerate() {
             let mid = &frames[c as usize];
@@ -207,34 +212,23 @@ pub fn run(
                 let truth =
                     shifts.map(|sh| (crate::imaging::truth::window_kernel(&mut s.blurrers[ni], &sh).0, mid.linear_crop(rx, ry, rw, rh)));
                 for &sigma in &e.sigmas {
-                    let blurred = match &e.sensor {
-                        Some(sn) => read_out(&sn.capture(&blur, (rx, ry, rw, rh), key), (rx, ry, rw, rh), &s.enc, sigma, throughput, key),
-                        None => read_out(&blur, (rx, ry, rw, rh), &s.enc, sigma, throughput, key),
-                    };
+                    let blurred = e.read_out(&blur, (rx, ry, rw, rh), &s.enc, sigma, throughput, key);
                     let deblurred = run_frame(net, &blurred, rw, rh, tiling);
                     let (qb, qd) = (quality(&blurred, &sharp, rw, rh), quality(&deblurred, &sharp, rw, rh));
-                    let bound = truth.as_ref().map(|(k, lin)| {
-                        let var = crate::imaging::truth::linear_noise_var(lin, e.curve, crate::imaging::sensor_sigma(sigma, throughput));
-                        let rec: [Vec<f32>; 3] =
-                            std::array::from_fn(|ch| crate::recon::wiener_bound(&lin[ch], rw, rh, &k[ch], var[ch], key ^ ch as u64).1);
-                        quality(&to_8bit(&rec, rw, rh, e.curve), &sharp, rw, rh)
-                    });
+                    let bound = truth
+                        .as_ref()
+                        .map(|(k, lin)| wiener(k, lin, (rw, rh), e.curve, crate::imaging::sensor_sigma(sigma, throughput), key, &sharp));
                     let example = (ci == 0 && sigma == top_sigma && example_slots.contains(&(vi, n))).then(|| {
                         let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
                         format!("examples/{vi:02}-{stem}-f{:05}-n{n:02}-s{sigma}.png", first + c)
                     });
                     if let Some(name) = &example {
-                        side_by_side(
-                            &out.join(name),
-                            rw,
-                            rh,
-                            [&blurred, &deblurred, &sharp],
-                            [
-                                format!("N={n} SIGMA={sigma} IN {:.2} DB", qb.psnr_rgb),
-                                format!("DEBLURRED {:.2} DB", qd.psnr_rgb),
-                                format!("SHARP FRAME {}", first + c),
-                            ],
-                        )?;
+                        let labels = [
+                            format!("N={n} SIGMA={sigma} IN {:.2} DB", qb.psnr_rgb),
+                            format!("DEBLURRED {:.2} DB", qd.psnr_rgb),
+                            format!("SHARP FRAME {}", first + c),
+                        ];
+                        side_by_side(&out.join(name), rw, rh, [&blurred, &deblurred, &sharp], labels)?;
                     }
                     records.push(Record {
                         video: video.clone(),
@@ -255,16 +249,58 @@ pub fn run(
         }
     }
     bar.finish();
+    let videos = paths.iter().map(|p| p.display().to_string()).collect();
+    write_report(f, model, videos, reg, t0.elapsed().as_secs_f64(), records, out)
+}
+
+/// The quality of the Wiener reconstruction of `lin` (a `w x h` region, linear) told its true
+/// kernels `k`, with the noise of `sigma` (8-bit levels, already scaled for the camera's light).
+fn wiener(k: &[Vec<f32>; 3], lin: &[Vec<f32>; 3], (w, h): (usize, usize), curve: Curve, sigma: f64, key: u64, sharp: &[u8]) -> Quality {
+    let var = crate::imaging::truth::linear_noise_var(lin, curve, sigma);
+    let rec: [Vec<f32>; 3] = std::array::from_fn(|ch| crate::recon::wiener_bound(&lin[ch], w, h, &k[ch], var[ch], key ^ ch as u64).1);
+    quality(&to_8bit(&rec, w, h, curve), sharp, w, h)
+}
+
+/// The progress bar of an eval over `videos` clips: one step per window and sigma.
+pub(crate) fn windows_bar(progress: crate::progress::ProgressMode, name: &str, e: &EvalConfig, videos: usize) -> crate::progress::Bar {
+    let total = (videos * e.windows_per_video * e.windows.len() * e.sigmas.len()) as u64;
+    crate::progress::Bar::new(progress, name, "windows", Some(total))
+}
+
+/// Where the side-by-side examples go: spread evenly over the videos (different content, not N
+/// after N of the first clip), each at its video's first sharp frame and the largest sigma: the
+/// middle window length, then the next ones where a video gets more than one. (video, N) pairs.
+fn example_slots(e: &EvalConfig, videos: usize) -> Vec<(usize, usize)> {
+    let mut slots: Vec<(usize, usize)> = Vec::new();
+    for i in 0..e.examples {
+        let vi = i * videos / e.examples;
+        let earlier = slots.iter().filter(|s| s.0 == vi).count();
+        slots.push((vi, e.windows[(e.windows.len() / 2 + earlier) % e.windows.len()]));
+    }
+    slots
+}
+
+/// The tables of `records`, written as `eval.json` and `eval.md` under `out`.
+fn write_report(
+    f: &EvalFile,
+    model: &str,
+    videos: Vec<String>,
+    region: [usize; 4],
+    seconds: f64,
+    records: Vec<Record>,
+    out: &Path,
+) -> Result<EvalReport> {
+    let e = &f.eval;
     let table = e.windows.iter().map(|&n| cell(&records, None, n, None)).collect();
     let per_sigma =
         e.windows.iter().flat_map(|&n| e.sigmas.iter().map(move |&s| (n, s))).map(|(n, s)| cell(&records, None, n, Some(s))).collect();
-    let mut videos: Vec<&str> = Vec::new();
+    let mut seen: Vec<&str> = Vec::new();
     for r in &records {
-        if !videos.contains(&r.video.as_str()) {
-            videos.push(&r.video);
+        if !seen.contains(&r.video.as_str()) {
+            seen.push(&r.video);
         }
     }
-    let per_video = videos.iter().flat_map(|v| e.windows.iter().map(|&n| cell(&records, Some(v), n, None))).collect();
+    let per_video = seen.iter().flat_map(|v| e.windows.iter().map(|&n| cell(&records, Some(v), n, None))).collect();
     let per_spread = spread_cells(&records, &e.windows);
     let report = EvalReport {
         version: env!("CARGO_PKG_VERSION"),
@@ -272,9 +308,9 @@ pub fn run(
         camera: f.camera.kind.name().into(),
         convention: crate::metrics::CONVENTION,
         config: f.clone(),
-        videos: paths.iter().map(|p| p.display().to_string()).collect(),
-        region: reg,
-        seconds: t0.elapsed().as_secs_f64(),
+        videos,
+        region,
+        seconds,
         table,
         per_sigma,
         per_video,
