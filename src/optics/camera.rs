@@ -14,8 +14,9 @@
 //! assert_eq!(window.len(), 9);
 //! ```
 
+use super::config::PsfAxis;
 use super::config::{Axis, CameraConfig, CameraKind, OpticsConfig, PsiSchedule};
-use super::measured::{PsfAxis, Stack};
+use super::measured::Stack;
 use super::psf::{Lens, Psf};
 use crate::checks::ConfigError;
 use std::collections::HashMap;

@@ -242,6 +242,17 @@ pub enum Axis {
     Y,
 }
 
+/// What a measured stack's K entries are.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum PsfAxis {
+    /// K equal slices of the exposure, in time order.
+    #[default]
+    Instants,
+    /// K values of psi, evenly spaced from the camera's `psi[0]` to `psi[1]`.
+    Psi,
+}
+
 /// Raskar et al. 2006, the 52-chop code (26 chops open).
 pub const RASKAR_CODE: &str = "1010000111000001010000110011110111010111001001100111";
 
@@ -269,7 +280,7 @@ pub struct CameraConfig {
     pub psf_path: Option<std::path::PathBuf>,
     /// For `measured`: what the stack's K entries are (`instants` of the exposure, or `psi`
     /// values evenly spaced over `psi`, mapped to sub-frames by `psi_schedule`).
-    pub psf_over: super::measured::PsfAxis,
+    pub psf_over: PsfAxis,
     /// For `measured`: rescale each channel of each entry to unit sum (else one off by more than
     /// 1% is refused).
     pub psf_normalise: bool,
@@ -319,11 +330,9 @@ impl CameraConfig {
         c.range("parabolic_amplitude_px", self.parabolic_amplitude_px, -200.0, 200.0);
         match (&self.psf_path, self.kind) {
             (None, CameraKind::Measured) => c.fail("psf_path", "the measured camera needs a PSF stack (.npy, (K, H, W, 3))"),
-            (Some(p), CameraKind::Measured) => {
-                if let Err(e) = super::measured::Stack::read(p, self.psf_normalise) {
-                    c.fail("psf_path", e);
-                }
-            }
+            // The stack itself is read and checked by the stages and commands that use it
+            // (`measured::check`), beside the camera.
+            (Some(_), CameraKind::Measured) => {}
             (Some(_), k) => c.fail("psf_path", format!("only the measured camera reads a PSF stack, not {}", k.name())),
             (None, _) => {}
         }

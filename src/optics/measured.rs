@@ -16,18 +16,18 @@
 
 use super::psf::Psf;
 use crate::io::npy;
-use serde::{Deserialize, Serialize};
 use std::path::Path;
 
-/// What a measured stack's K entries are.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
-#[serde(rename_all = "snake_case")]
-pub enum PsfAxis {
-    /// K equal slices of the exposure, in time order.
-    #[default]
-    Instants,
-    /// K values of psi, evenly spaced from the camera's `psi[0]` to `psi[1]`.
-    Psi,
+/// The stack of a `measured` camera read and checked, as configuration errors under `prefix`
+/// (`camera.psf_path`); nothing for the other cameras.
+pub fn check(camera: &super::CameraConfig, prefix: &str) -> Vec<crate::checks::ConfigError> {
+    match (&camera.psf_path, camera.kind) {
+        (Some(p), super::CameraKind::Measured) => match Stack::read(p, camera.psf_normalise) {
+            Ok(_) => Vec::new(),
+            Err(message) => vec![crate::checks::ConfigError { key: format!("{prefix}.psf_path"), message }],
+        },
+        _ => Vec::new(),
+    }
 }
 
 /// How far a channel's sum may be from 1 before a stack is refused (without `psf_normalise`).

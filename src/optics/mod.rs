@@ -17,5 +17,5 @@ pub mod request;
 pub mod transfer;
 
 pub use camera::{CacheStats, Camera, SubframeKernel};
-pub use config::{Axis, CameraConfig, CameraKind, Dispersion, OpticsConfig, PsiSchedule, Ring, Spectrum};
+pub use config::{Axis, CameraConfig, CameraKind, Dispersion, OpticsConfig, PsfAxis, PsiSchedule, Ring, Spectrum};
 pub use psf::{Lens, Psf};

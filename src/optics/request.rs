@@ -171,6 +171,7 @@ pub fn resolve(a: &PsfSpec) -> crate::Result<(OpticsConfig, CameraConfig, PsfReq
     }
     let mut errs = optics.validate("optics");
     errs.extend(camera.validate("camera"));
+    errs.extend(crate::optics::measured::check(&camera, "camera"));
     if !errs.is_empty() {
         return Err(crate::Error::Config(errs));
     }

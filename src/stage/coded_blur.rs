@@ -146,6 +146,7 @@ impl StageConfig for BlurConfig {
             c.range_usize("tile", self.tile, 16, 1 << 20);
         }
         c.errors.extend(self.camera.validate(&format!("{key}.camera")));
+        c.errors.extend(crate::optics::measured::check(&self.camera, &format!("{key}.camera")));
         c.errors.extend(self.optics.validate(&format!("{key}.optics")));
         if let Burst::Times(k) = self.burst {
             c.range_usize("burst", k, 2, 64);

@@ -42,7 +42,7 @@ pub struct BurstSpeed {
 /// `bench deblur`: frames/s of each shipped model on a `width x height` frame, whole and tiled,
 /// beside PyTorch on the same architecture when torch is installed.
 pub fn deblur(width: usize, height: usize, repeats: usize, burst: Option<usize>) -> crate::Result<Vec<DeblurSpeed>> {
-    use crate::model::infer::{run_frame, run_frame_burst, Tiling};
+    use crate::model::infer::{run_frame, Tiling};
     use crate::model::Arch;
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
     let script = torch_script();
@@ -69,15 +69,9 @@ pub fn deblur(width: usize, height: usize, repeats: usize, burst: Option<usize>)
             (Some(_), _) => continue,
         };
         let time = |tiling: Tiling| {
-            let mut t = Vec::new();
-            for r in 0..repeats + 1 {
-                let t0 = Instant::now();
+            1.0 / median_time(repeats, &|| {
                 std::hint::black_box(run_frame(&net, &frame, width, height, tiling));
-                if r > 0 {
-                    t.push(t0.elapsed().as_secs_f64());
-                }
-            }
-            1.0 / median(&mut t)
+            })
         };
         let whole = time(Tiling { tile: width.max(height), overlap: 0 });
         let tiled = time(Tiling::default());
@@ -87,13 +81,7 @@ pub fn deblur(width: usize, height: usize, repeats: usize, burst: Option<usize>)
                 Arch::BurstUnet { base } => ("burst_unet", base),
                 Arch::Shallow { width } => ("shallow", width),
             };
-            std::process::Command::new(python())
-                .arg(script)
-                .env("TORCH_THREADS", rayon::current_num_threads().to_string())
-                .args(["infer", kind, &w.to_string(), &height.to_string(), &width.to_string(), &repeats.to_string()])
-                .output()
-                .ok()
-                .and_then(|o| serde_json::from_slice(&o.stdout).ok())
+            torch_json(script, &["infer", kind, &w.to_string(), &height.to_string(), &width.to_string(), &repeats.to_string()])
         } else {
             None
         };
@@ -107,50 +95,7 @@ pub fn deblur(width: usize, height: usize, repeats: usize, burst: Option<usize>)
                 None => "; torch not installed, no comparison".into(),
             }
         );
-        let burst = burst.map(|k| {
-            let ts: Vec<f32> = (0..k).map(|i| (i as f32 + 0.5) / k as f32).collect();
-            let med = |f: &dyn Fn()| {
-                let mut t = Vec::new();
-                for r in 0..repeats + 1 {
-                    let t0 = Instant::now();
-                    f();
-                    if r > 0 {
-                        t.push(t0.elapsed().as_secs_f64());
-                    }
-                }
-                median(&mut t)
-            };
-            let once = med(&|| {
-                std::hint::black_box(run_frame_burst(&net, &frame, width, height, Tiling::default(), &ts));
-            });
-            let passes = med(&|| {
-                for t in &ts {
-                    std::hint::black_box(run_frame_burst(&net, &frame, width, height, Tiling::default(), std::slice::from_ref(t)));
-                }
-            });
-            let torch = script.as_ref().and_then(|s| {
-                std::process::Command::new(python())
-                    .arg(s)
-                    .env("TORCH_THREADS", rayon::current_num_threads().to_string())
-                    .args([
-                        "burst",
-                        &arch.width().to_string(),
-                        &height.to_string(),
-                        &width.to_string(),
-                        &k.to_string(),
-                        &repeats.to_string(),
-                    ])
-                    .output()
-                    .ok()
-                    .and_then(|o| serde_json::from_slice(&o.stdout).ok())
-            });
-            eprintln!(
-                "bench: {name} as {} --burst {k}: {once:.2} s for {k} frames, {passes:.2} s for {k} passes ({:.2}x)",
-                arch.name(),
-                once / passes
-            );
-            BurstSpeed { k, burst_s_median: once, k_passes_s_median: passes, ratio: once / passes, torch }
-        });
+        let burst = burst.map(|k| burst_speed(&net, arch, name, (&frame, width, height), k, repeats, script.as_deref()));
         out.push(DeblurSpeed {
             model: format!("models/{name}"),
             arch: arch.name(),
@@ -165,4 +110,59 @@ pub fn deblur(width: usize, height: usize, repeats: usize, burst: Option<usize>)
         });
     }
     Ok(out)
+}
+
+/// The median time of `repeats` runs of `f` after one warm-up run, seconds.
+fn median_time(repeats: usize, f: &dyn Fn()) -> f64 {
+    let mut t = Vec::new();
+    for r in 0..repeats + 1 {
+        let t0 = Instant::now();
+        f();
+        if r > 0 {
+            t.push(t0.elapsed().as_secs_f64());
+        }
+    }
+    median(&mut t)
+}
+
+/// What `benches/torch_models.py` prints for `args`, on as many threads as ours.
+fn torch_json(script: &std::path::Path, args: &[&str]) -> Option<serde_json::Value> {
+    std::process::Command::new(python())
+        .arg(script)
+        .env("TORCH_THREADS", rayon::current_num_threads().to_string())
+        .args(args)
+        .output()
+        .ok()
+        .and_then(|o| serde_json::from_slice(&o.stdout).ok())
+}
+
+/// `--burst k`: k frames of one capture against k single-frame passes of the same network, and
+/// PyTorch's time for the same k frames when torch is installed.
+fn burst_speed(
+    net: &crate::model::fast::FastNet,
+    arch: crate::model::Arch,
+    name: &str,
+    (frame, width, height): (&[u8], usize, usize),
+    k: usize,
+    repeats: usize,
+    script: Option<&std::path::Path>,
+) -> BurstSpeed {
+    use crate::model::infer::{run_frame_burst, Tiling};
+    let ts: Vec<f32> = (0..k).map(|i| (i as f32 + 0.5) / k as f32).collect();
+    let once = median_time(repeats, &|| {
+        std::hint::black_box(run_frame_burst(net, frame, width, height, Tiling::default(), &ts));
+    });
+    let passes = median_time(repeats, &|| {
+        for t in &ts {
+            std::hint::black_box(run_frame_burst(net, frame, width, height, Tiling::default(), std::slice::from_ref(t)));
+        }
+    });
+    let args = [arch.width(), height, width, k, repeats].map(|v| v.to_string());
+    let torch = script.and_then(|s| torch_json(s, &["burst", &args[0], &args[1], &args[2], &args[3], &args[4]]));
+    eprintln!(
+        "bench: {name} as {} --burst {k}: {once:.2} s for {k} frames, {passes:.2} s for {k} passes ({:.2}x)",
+        arch.name(),
+        once / passes
+    );
+    BurstSpeed { k, burst_s_median: once, k_passes_s_median: passes, ratio: once / passes, torch }
 }

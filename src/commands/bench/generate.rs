@@ -268,41 +268,7 @@ pub fn generate(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> c
         ("patches", &clip),
         ("patches, clip twice as long", &long),
     ] {
-        let mut rates = Vec::new();
-        let mut peak = None;
-        let mut n_frames = 0;
-        for _ in 0..repeats {
-            let out = dir.join("out");
-            let _ = std::fs::remove_dir_all(&out);
-            let plan = bench_plan(mode, path, &out)?;
-            let reset = reset_peak_rss();
-            let o = crate::graph::run(&plan, &crate::graph::RunOptions::default())?;
-            if reset {
-                let p = crate::provenance::peak_rss_kb().map(|k| k as f64 / 1024.0);
-                peak = match (peak, p) {
-                    (Some(a), Some(b)) => Some(f64::max(a, b)),
-                    (a, b) => a.or(b),
-                };
-            }
-            n_frames = o.report.frames;
-            rates.push(o.report.subframes_per_s);
-        }
-        let all = rates.clone();
-        let m = median(&mut rates);
-        eprintln!(
-            "bench: {mode}: {m:.1} sub-frames/s (median of {repeats}), {:.2}x ffmpeg decode-only, peak RSS {}",
-            m / ff_med,
-            peak.map_or("n/a".into(), |p| format!("{p:.0} MB"))
-        );
-        rows.push(GenerateRow {
-            mode: mode.into(),
-            frames: n_frames,
-            subframes_per_s_median: m,
-            subframes_per_s_all: all,
-            ratio_to_ffmpeg_decode: m / ff_med,
-            ratio_to_own_decode: m / own_med,
-            peak_rss_mb: peak,
-        });
+        rows.push(generate_row(mode, path, &dir, repeats, (ff_med, own_med))?);
     }
     let floor = fft_floor(w, h, 9, repeats.max(5), ff_med)?;
     eprintln!(
@@ -345,5 +311,52 @@ pub fn generate(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> c
         fft_floor: floor,
         peak_rss_mb_4k: peak_4k,
         peers,
+    })
+}
+
+/// One mode of `bench generate` run `repeats` times on `clip` into `dir/out`: the median rate
+/// against FFmpeg's and our decoder's (`decode`: frames/s of each) and the peak memory.
+fn generate_row(
+    mode: &str,
+    clip: &std::path::Path,
+    dir: &std::path::Path,
+    repeats: usize,
+    decode: (f64, f64),
+) -> crate::Result<GenerateRow> {
+    let (ff_med, own_med) = decode;
+    let mut rates = Vec::new();
+    let mut peak = None;
+    let mut n_frames = 0;
+    for _ in 0..repeats {
+        let out = dir.join("out");
+        let _ = std::fs::remove_dir_all(&out);
+        let plan = bench_plan(mode, clip, &out)?;
+        let reset = reset_peak_rss();
+        let o = crate::graph::run(&plan, &crate::graph::RunOptions::default())?;
+        if reset {
+            let p = crate::provenance::peak_rss_kb().map(|k| k as f64 / 1024.0);
+            peak = match (peak, p) {
+                (Some(a), Some(b)) => Some(f64::max(a, b)),
+                (a, b) => a.or(b),
+            };
+        }
+        n_frames = o.report.frames;
+        rates.push(o.report.subframes_per_s);
+    }
+    let all = rates.clone();
+    let m = median(&mut rates);
+    eprintln!(
+        "bench: {mode}: {m:.1} sub-frames/s (median of {repeats}), {:.2}x ffmpeg decode-only, peak RSS {}",
+        m / ff_med,
+        peak.map_or("n/a".into(), |p| format!("{p:.0} MB"))
+    );
+    Ok(GenerateRow {
+        mode: mode.into(),
+        frames: n_frames,
+        subframes_per_s_median: m,
+        subframes_per_s_all: all,
+        ratio_to_ffmpeg_decode: m / ff_med,
+        ratio_to_own_decode: m / own_med,
+        peak_rss_mb: peak,
     })
 }

@@ -236,34 +236,40 @@ pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize, rounds:
                 forward_gflops_per_core: per_core(gflop / (fwd / 1e3)),
                 fma_peak_gflops_per_core: peak.map(|p| p.0),
             };
-            eprintln!(
-                "bench: {} ({engine}, {threads} threads): {:.2} patches/s training (batch {batch}), forward {:.1} ms per 128x128 patch{}",
-                row.model,
-                row.train_patches_per_s_median,
-                row.forward_ms_per_patch_median,
-                match (tt, tf) {
-                    (Some(tt), Some(tf)) => format!(
-                        "; PyTorch {tt:.2} patches/s, {tf:.1} ms: our time {:.2}x training, {:.2}x forward (medians of {} alternating rounds)",
-                        row.train_time_ratio_vs_torch.unwrap_or(f64::NAN),
-                        row.forward_time_ratio_vs_torch.unwrap_or(f64::NAN),
-                        row.rounds
-                    ),
-                    _ if engine == "fast" => "; torch not installed, no comparison".into(),
-                    _ => String::new(),
-                }
-            );
-            let share = |g: f64| peak.map_or(String::new(), |(p, _)| format!(", {:.0}% of peak", 100.0 * g / p));
-            eprintln!(
-                "bench: {} ({engine}): {:.1} GFLOP/s per core training{}, {:.1} forward{} (effective: direct-convolution FLOPs; Winograd does fewer){}",
-                row.model,
-                row.train_gflops_per_core,
-                share(row.train_gflops_per_core),
-                row.forward_gflops_per_core,
-                share(row.forward_gflops_per_core),
-                tt.map_or(String::new(), |tt| format!("; PyTorch {:.1} training", per_core(3.0 * gflop * tt)))
-            );
+            print_row(&row, tt, tf, peak, per_core(3.0 * gflop * tt.unwrap_or(f64::NAN)));
             out.push(row);
         }
     }
     Ok(out)
+}
+
+/// The two lines `bench train` prints per row: speed beside PyTorch's (`tt` patches/s, `tf` ms
+/// per patch forward), and GFLOP/s per core against the core's peak (`torch_gflops`: PyTorch's
+/// training GFLOP/s per core).
+fn print_row(row: &ModelSpeed, tt: Option<f64>, tf: Option<f64>, peak: Option<(f64, &'static str)>, torch_gflops: f64) {
+    let (engine, threads, batch) = (row.engine, row.threads, row.batch);
+    let versus = match (tt, tf) {
+        (Some(tt), Some(tf)) => format!(
+            "; PyTorch {tt:.2} patches/s, {tf:.1} ms: our time {:.2}x training, {:.2}x forward (medians of {} alternating rounds)",
+            row.train_time_ratio_vs_torch.unwrap_or(f64::NAN),
+            row.forward_time_ratio_vs_torch.unwrap_or(f64::NAN),
+            row.rounds
+        ),
+        _ if engine == "fast" => "; torch not installed, no comparison".into(),
+        _ => String::new(),
+    };
+    eprintln!(
+        "bench: {} ({engine}, {threads} threads): {:.2} patches/s training (batch {batch}), forward {:.1} ms per 128x128 patch{versus}",
+        row.model, row.train_patches_per_s_median, row.forward_ms_per_patch_median,
+    );
+    let share = |g: f64| peak.map_or(String::new(), |(p, _)| format!(", {:.0}% of peak", 100.0 * g / p));
+    eprintln!(
+        "bench: {} ({engine}): {:.1} GFLOP/s per core training{}, {:.1} forward{} (effective: direct-convolution FLOPs; Winograd does fewer){}",
+        row.model,
+        row.train_gflops_per_core,
+        share(row.train_gflops_per_core),
+        row.forward_gflops_per_core,
+        share(row.forward_gflops_per_core),
+        tt.map_or(String::new(), |_| format!("; PyTorch {torch_gflops:.1} training"))
+    );
 }

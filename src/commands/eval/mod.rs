@@ -190,6 +190,7 @@ impl EvalFile {
         }
         let mut errs = c.errors;
         errs.extend(self.camera.validate("camera"));
+        errs.extend(crate::optics::measured::check(&self.camera, "camera"));
         errs.extend(self.optics.validate("optics"));
         errs
     }

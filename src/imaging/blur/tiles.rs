@@ -78,12 +78,63 @@ pub(super) fn blur_core(
 ) -> [Vec<f32>; 3] {
     let (x0, y0, rw, rh) = region;
     let wp = convs[0].lock().expect("conv").wp;
-    let (fw, fh) = (frames[0].width, frames[0].height);
     let (ew, eh) = (rw + 2 * m, rh + 2 * m);
     let (ex, ey) = (x0 - m as isize, y0 - m as isize);
     // Several plans: work spread over rayon's workers; one: all of it here (a patch).
     let parallel = convs.len() > 1;
-    let workers = convs.len();
+    combine(factors, ws, frames, convs.len(), wp, (ex, ey, ew, eh));
+    // Phase 2: one forward FFT per (channel, rank), in place, times the basis spectrum.
+    let mut jobs: Vec<(&mut [f32], &[Complex32], &mut Vec<Complex32>)> = Vec::new();
+    for (c, (bufs, slots)) in ws.combined.iter_mut().zip(ws.slots.iter_mut()).enumerate() {
+        for (r, (img, slot)) in bufs.iter_mut().zip(slots.iter_mut()).enumerate() {
+            jobs.push((img, &spectra.full[c][r], slot));
+        }
+    }
+    let phase2 = |(img, spec, slot): (&mut [f32], &[Complex32], &mut Vec<Complex32>)| {
+        worker(convs).lock().expect("conv lock").forward_mul_in_place(img, spec, slot);
+    };
+    if parallel {
+        use rayon::prelude::*;
+        jobs.into_par_iter().for_each(phase2);
+    } else {
+        jobs.into_iter().for_each(phase2);
+    }
+    // Phase 3: sum the ranks in order (deterministic), one inverse per channel.
+    // The slots are overwritten every window, so the ranks are summed into slot 0 in place.
+    let phase3 = |(ranks, full): (&mut Vec<Vec<Complex32>>, &mut Vec<f32>)| -> Vec<f32> {
+        let (first, rest) = ranks.split_first_mut().expect("rank 0");
+        for slot in rest.iter() {
+            mul_acc_add(first, slot);
+        }
+        worker(convs).lock().expect("conv lock").inverse(first, full);
+        let mut o = Vec::with_capacity(rw * rh);
+        for y in 0..rh {
+            o.extend_from_slice(&full[(y + m) * wp + m..(y + m) * wp + m + rw]);
+        }
+        o
+    };
+    let outs: Vec<Vec<f32>> = if parallel {
+        use rayon::prelude::*;
+        ws.slots.par_iter_mut().zip(ws.full.par_iter_mut()).map(phase3).collect()
+    } else {
+        ws.slots.iter_mut().zip(ws.full.iter_mut()).map(phase3).collect()
+    };
+    let mut it = outs.into_iter();
+    std::array::from_fn(|_| it.next().expect("3 channels"))
+}
+
+/// Phase 1 of [`blur_core`]: the combined images sum_k a_kr S_k of every channel and rank of the
+/// extended region (ex, ey, ew, eh) into `ws.combined`, by row bands on `workers` threads.
+fn combine(
+    factors: &[LowRank; 3],
+    ws: &mut Workspace,
+    frames: &[Arc<Frame>],
+    workers: usize,
+    wp: usize,
+    (ex, ey, ew, eh): (isize, isize, usize, usize),
+) {
+    let parallel = workers > 1;
+    let (fw, fh) = (frames[0].width, frames[0].height);
     // Phase 1: the combined images sum_k a_kr S_k of every channel and rank, by row bands;
     // each job owns its rows of every rank's buffer. The region fills `ew` columns of the first
     // `eh` rows; the rest of each buffer is zeroed every window, because the forward transforms
@@ -127,44 +178,6 @@ pub(super) fn blur_core(
     } else {
         jobs.into_iter().for_each(phase1);
     }
-    // Phase 2: one forward FFT per (channel, rank), in place, times the basis spectrum.
-    let mut jobs: Vec<(&mut [f32], &[Complex32], &mut Vec<Complex32>)> = Vec::new();
-    for (c, (bufs, slots)) in ws.combined.iter_mut().zip(ws.slots.iter_mut()).enumerate() {
-        for (r, (img, slot)) in bufs.iter_mut().zip(slots.iter_mut()).enumerate() {
-            jobs.push((img, &spectra.full[c][r], slot));
-        }
-    }
-    let phase2 = |(img, spec, slot): (&mut [f32], &[Complex32], &mut Vec<Complex32>)| {
-        worker(convs).lock().expect("conv lock").forward_mul_in_place(img, spec, slot);
-    };
-    if parallel {
-        use rayon::prelude::*;
-        jobs.into_par_iter().for_each(phase2);
-    } else {
-        jobs.into_iter().for_each(phase2);
-    }
-    // Phase 3: sum the ranks in order (deterministic), one inverse per channel.
-    // The slots are overwritten every window, so the ranks are summed into slot 0 in place.
-    let phase3 = |(ranks, full): (&mut Vec<Vec<Complex32>>, &mut Vec<f32>)| -> Vec<f32> {
-        let (first, rest) = ranks.split_first_mut().expect("rank 0");
-        for slot in rest.iter() {
-            mul_acc_add(first, slot);
-        }
-        worker(convs).lock().expect("conv lock").inverse(first, full);
-        let mut o = Vec::with_capacity(rw * rh);
-        for y in 0..rh {
-            o.extend_from_slice(&full[(y + m) * wp + m..(y + m) * wp + m + rw]);
-        }
-        o
-    };
-    let outs: Vec<Vec<f32>> = if parallel {
-        use rayon::prelude::*;
-        ws.slots.par_iter_mut().zip(ws.full.par_iter_mut()).map(phase3).collect()
-    } else {
-        ws.slots.iter_mut().zip(ws.full.iter_mut()).map(phase3).collect()
-    };
-    let mut it = outs.into_iter();
-    std::array::from_fn(|_| it.next().expect("3 channels"))
 }
 
 /// The coefficients a_kr of a channel's factorisation as f32, frame-major (frame k's for every
