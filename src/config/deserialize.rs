@@ -1,5 +1,6 @@
 //! serde over a whole table, every error at once: each error's culprit key found and removed,
-//! then the rest tried again.
+//! then the rest tried again. Where an error is, is the typed path serde walked to it
+//! (`serde_path_to_error`), not text read back from the toml crate's message.
 
 use crate::checks::ConfigError;
 
@@ -32,16 +33,29 @@ pub fn deserialize_all<T: serde::de::DeserializeOwned>(table: &toml::Table) -> (
     fn get<'a>(t: &'a toml::Table, key: &str) -> Option<&'a toml::Table> {
         key.split('.').filter(|k| !k.is_empty()).try_fold(t, |t, k| t.get(k)?.as_table())
     }
-    let de = |t: &toml::Table| toml::Value::Table(t.clone()).try_into::<T>().map_err(|e| e.to_string());
+    // An error: its message, the table key serde was in (map keys up to the first array index
+    // or enum), and both as one string to tell two errors apart.
+    let de = |t: &toml::Table| {
+        serde_path_to_error::deserialize::<_, T>(toml::Value::Table(t.clone())).map_err(|e| {
+            let at: Vec<String> = e
+                .path()
+                .iter()
+                .map_while(|s| match s {
+                    serde_path_to_error::Segment::Map { key } => Some(key.clone()),
+                    _ => None,
+                })
+                .collect();
+            let message = e.inner().message().trim().to_string();
+            (message.clone(), at.join("."), format!("{message} at {}", e.path()))
+        })
+    };
     let mut t = table.clone();
     let mut errs = Vec::new();
     for _ in 0..256 {
-        let e = match de(&t) {
+        let (message, at, e) = match de(&t) {
             Ok(v) => return (Some(v), errs),
             Err(e) => e,
         };
-        let message = e.lines().next().unwrap_or("").trim().to_string();
-        let at = e.lines().find_map(|l| l.trim().strip_prefix("in `").and_then(|l| l.strip_suffix('`'))).unwrap_or("").to_string();
         let mut cands = Vec::new();
         if let Some(sub) = get(&t, &at) {
             leaves(sub, &at, &mut cands);
@@ -54,7 +68,7 @@ pub fn deserialize_all<T: serde::de::DeserializeOwned>(table: &toml::Table) -> (
             remove(&mut u, leaf);
             match de(&u) {
                 Ok(_) => true,
-                Err(e2) => e2 != e && !e2.contains("missing field"),
+                Err((m2, _, e2)) => e2 != e && !m2.contains("missing field"),
             }
         });
         match culprit {
