@@ -20,7 +20,7 @@ from . import _native
 from ._native import __version__
 from .safetensors import load_safetensors
 
-__all__ = ["CodedBlurDataset", "psf", "deblur", "to_torch", "load_safetensors", "__version__"]
+__all__ = ["CodedBlurDataset", "psf", "deblur", "deblur_burst", "to_torch", "load_safetensors", "__version__"]
 
 # CodedBlurDataset is a torch IterableDataset when torch is installed (so DataLoader takes it
 # as one and shards it across its workers), a plain iterable otherwise.
@@ -202,6 +202,28 @@ def deblur(image, model=None):
         raise ValueError(f"image of dtype {a.dtype}: expected float in [0, 1] or integer codes (uint8, uint16)")
     x = np.ascontiguousarray(a, dtype=np.float32)
     return _native.deblur(x, None if model is None else os.fspath(model))
+
+
+def deblur_burst(image, k=9, model=None, camera=None):
+    """``pipeline deblur --burst K`` on one capture: K sharp frames over the exposure, in time order.
+
+    image: (3, H, W) float in [0, 1] (or uint8/uint16 codes), a capture of the camera; k: frames
+    (2 to 64, at times (i + 0.5) / k); model: a burst model file or folder (None: the shipped burst
+    U-Net of ``camera``, "phase_coded" by default, or "conventional"). The network runs in tiles as
+    the command runs it, and the part that does not depend on the time once. Returns (k, 3, H, W)
+    float32 in [0, 1].
+    """
+    import numpy as np
+
+    a = np.asarray(image)
+    if a.ndim != 3 or a.shape[0] != 3:
+        raise ValueError(f"image of shape {a.shape}: expected (3, H, W)")
+    if a.dtype.kind in "ui":
+        a = a.astype(np.float32) / float(np.iinfo(a.dtype).max)
+    elif a.dtype.kind != "f":
+        raise ValueError(f"image of dtype {a.dtype}: expected float in [0, 1] or integer codes (uint8, uint16)")
+    x = np.ascontiguousarray(a, dtype=np.float32)
+    return _native.deblur_burst(x, int(k), None if model is None else os.fspath(model), camera)
 
 
 def to_torch(sample):

@@ -296,11 +296,50 @@ fn deblur<'py>(
     out.into_pyarray(py).reshape([3, h, w])
 }
 
+/// `pipeline deblur --burst K` on one (3, H, W) float32 image in [0, 1]: K sharp frames in time
+/// order, (K, 3, H, W) float32 clamped to [0, 1], the network run in tiles as the command runs
+/// it. `camera` picks the shipped burst model of that camera when `model` is None.
+#[pyfunction]
+#[pyo3(signature = (image, k = 9, model = None, camera = None))]
+fn deblur_burst<'py>(
+    py: Python<'py>,
+    image: PyReadonlyArray3<'py, f32>,
+    k: usize,
+    model: Option<std::path::PathBuf>,
+    camera: Option<String>,
+) -> PyResult<Bound<'py, PyArray4<f32>>> {
+    use pipeline::optics::CameraKind;
+    let (c, h, w) = (image.shape()[0], image.shape()[1], image.shape()[2]);
+    if c != 3 {
+        return Err(PyValueError::new_err(format!("image of shape ({c}, {h}, {w}): expected (3, H, W)")));
+    }
+    if !(2..=64).contains(&k) {
+        return Err(PyValueError::new_err(format!("k = {k}: the number of frames per capture must be 2 to 64")));
+    }
+    let camera = match camera.as_deref() {
+        None | Some("phase_coded") => None,
+        Some("conventional") => Some(CameraKind::Conventional),
+        Some(other) => return Err(PyValueError::new_err(format!("camera {other:?}: expected \"phase_coded\" or \"conventional\""))),
+    };
+    let data = image.as_slice().map_err(|_| PyValueError::new_err("image must be C-contiguous"))?.to_vec();
+    fork_guard()?;
+    let outs = py
+        .detach(|| {
+            let (net, _) = pipeline::model::infer::load_for(model.as_deref(), camera, true)?;
+            let times: Vec<f32> = (0..k).map(|i| (i as f32 + 0.5) / k as f32).collect();
+            let tiling = pipeline::model::infer::Tiling::default();
+            Ok::<_, pipeline::Error>(pipeline::model::infer::deblur_planes(&net, &data, w, h, tiling, Some(&times)))
+        })
+        .map_err(value_err)?;
+    outs.concat().into_pyarray(py).reshape([k, 3, h, w])
+}
+
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Stream>()?;
     m.add_function(wrap_pyfunction!(psf, m)?)?;
     m.add_function(wrap_pyfunction!(deblur, m)?)?;
+    m.add_function(wrap_pyfunction!(deblur_burst, m)?)?;
     m.add_function(wrap_pyfunction!(check, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())

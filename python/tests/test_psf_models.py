@@ -65,6 +65,27 @@ def test_deblur_matches_the_cli_and_exported_weights_keep_their_tensors(cli, tmp
     assert sum(v.size for k, v in tensors.items() if "running" not in k and "num_batches" not in k) == 3_698_979
 
 
+def test_deblur_burst_matches_the_cli_frame_for_frame(cli, tmp_path):
+    ds = pipeline.CodedBlurDataset([ROOT / "fixtures" / "mandelbrot-pan-240fps.mp4"], overrides={"sources.video.max_frames": 9})
+    lq, _, _ = next(iter(ds))
+    lq8 = np.rint(lq * 255).astype(np.uint8)
+    burst = pipeline.deblur_burst(lq8, k=5)
+    assert burst.shape == (5,) + lq.shape and burst.dtype == np.float32
+    assert burst.min() >= 0.0 and burst.max() <= 1.0
+    # The frames differ over the exposure (the network is told the time).
+    assert np.abs(burst[0] - burst[4]).mean() > 1e-3
+    # `pipeline deblur --burst 5` on the same 8-bit image writes the same frames.
+    Image.fromarray(lq8.transpose(1, 2, 0)).save(tmp_path / "cap.png")
+    cli("deblur", tmp_path / "cap.png", "-o", tmp_path / "out", "--burst", "5", "--progress", "never")
+    for k in range(5):
+        want = np.asarray(Image.open(tmp_path / "out" / "cap" / f"{k:02d}.png")).transpose(2, 0, 1)
+        np.testing.assert_array_equal(to_8bit(burst[k]), want)
+    with pytest.raises(ValueError, match="2 to 64"):
+        pipeline.deblur_burst(lq8, k=1)
+    with pytest.raises(ValueError, match="camera"):
+        pipeline.deblur_burst(lq8, camera="flutter")
+
+
 def test_exported_model_in_torch_matches_deblur(cli, tmp_path):
     torch = pytest.importorskip("torch")
     from pipeline.models import load

@@ -178,6 +178,25 @@ pub fn run_frame_burst(net: &FastNet, rgb: &[u8], w: usize, h: usize, tiling: Ti
     outs
 }
 
+/// The library form of `deblur` and `deblur --burst` on one image held as planes: `chw` is
+/// (3, H, W) encoded values in [0, 1]; the network runs in blended tiles as the command runs
+/// it, once per image, or with `times` once for the part that does not depend on the time. The
+/// outputs (one, or one per time, in order) are (3, H, W) clamped to [0, 1]. The Python
+/// package's `deblur_burst` is this.
+pub fn deblur_planes(net: &FastNet, chw: &[f32], w: usize, h: usize, tiling: Tiling, times: Option<&[f32]>) -> Vec<Vec<f32>> {
+    assert_eq!(chw.len(), 3 * w * h);
+    let mut outs = vec![vec![0.0f32; 3 * w * h]; times.map_or(1, <[f32]>::len)];
+    let plane = w * h;
+    run_rows_at(net, w, h, tiling, times, &|i, c| chw[c * plane + i], &mut |k, y, row| {
+        for (x, px) in row.chunks_exact(3).enumerate() {
+            for (c, &v) in px.iter().enumerate() {
+                outs[k][c * plane + y * w + x] = v;
+            }
+        }
+    });
+    outs
+}
+
 /// Loads `--model`, or the embedded default.
 ///
 /// # Errors
