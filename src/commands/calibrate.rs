@@ -98,7 +98,7 @@ pub fn command(a: CalibrateArgs) -> anyhow::Result<()> {
     let captures = files.iter().map(|f| read(f, a.curve)).collect::<Result<Vec<_>>>()?;
     let dark = a.dark.as_deref().map(|d| read(d, a.curve)).transpose()?;
     let o = Options { size: a.size, threshold: a.threshold, centre: a.centre, border: a.border };
-    let (psfs, entries) = calibrate(&captures, dark.as_ref(), &o).map_err(Error::Usage)?;
+    let (psfs, entries) = calibrate(&captures, dark.as_ref(), &o).map_err(|e| Error::Usage(e.to_string()))?;
     let rows: Vec<crate::optics::request::PsfRow> = psfs
         .into_iter()
         .enumerate()

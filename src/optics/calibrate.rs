@@ -113,22 +113,38 @@ fn centroid(planes: &[[Vec<f32>; 3]], w: usize) -> [f64; 2] {
     }
 }
 
+/// Why captures could not be calibrated.
+#[derive(Debug, thiserror::Error, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum CalibrateError {
+    #[error("no captures")]
+    NoCaptures,
+    #[error("capture {index} is {width}x{height}, the first is {first_width}x{first_height}")]
+    Size { index: usize, width: usize, height: usize, first_width: usize, first_height: usize },
+    #[error("the dark frame is not {0}x{1} like the captures")]
+    DarkSize(usize, usize),
+    #[error("size {size} must be odd and at most the captures' {width}x{height}")]
+    Crop { size: usize, width: usize, height: usize },
+    #[error("capture {index}: no signal above the noise in channel {channel} inside the crop")]
+    NoSignal { index: usize, channel: &'static str },
+}
+
 /// The PSF stack of `captures` (all of one size; `dark` of that size too).
 ///
 /// # Errors
 /// Captures of different sizes, a size larger than a capture, or a capture with no signal above
 /// the noise in some channel (named by its index).
-pub fn calibrate(captures: &[Planes], dark: Option<&Planes>, o: &Options) -> Result<(Vec<Psf>, Vec<Entry>), String> {
-    let first = captures.first().ok_or("no captures")?;
+pub fn calibrate(captures: &[Planes], dark: Option<&Planes>, o: &Options) -> Result<(Vec<Psf>, Vec<Entry>), CalibrateError> {
+    let first = captures.first().ok_or(CalibrateError::NoCaptures)?;
     let (w, h) = (first.width, first.height);
-    if let Some((i, c)) = captures.iter().enumerate().find(|(_, c)| (c.width, c.height) != (w, h)) {
-        return Err(format!("capture {i} is {}x{}, the first is {w}x{h}", c.width, c.height));
+    if let Some((index, c)) = captures.iter().enumerate().find(|(_, c)| (c.width, c.height) != (w, h)) {
+        return Err(CalibrateError::Size { index, width: c.width, height: c.height, first_width: w, first_height: h });
     }
     if dark.is_some_and(|d| (d.width, d.height) != (w, h)) {
-        return Err(format!("the dark frame is not {w}x{h} like the captures"));
+        return Err(CalibrateError::DarkSize(w, h));
     }
     if o.size.is_multiple_of(2) || o.size > w || o.size > h {
-        return Err(format!("size {} must be odd and at most the captures' {w}x{h}", o.size));
+        return Err(CalibrateError::Crop { size: o.size, width: w, height: h });
     }
     let signals: Vec<_> = captures.iter().map(|c| signal(c, dark, o)).collect();
     let planes: Vec<[Vec<f32>; 3]> = signals.iter().map(|s| s.0.clone()).collect();
@@ -152,7 +168,7 @@ pub fn calibrate(captures: &[Planes], dark: Option<&Planes>, o: &Options) -> Res
             crop.iter().map(|&v| if kept > 0.0 { (v as f64 / kept) as f32 } else { 0.0 }).collect()
         });
         if let Some(ch) = (0..3).find(|&ch| inside[ch] * signal[ch] <= 0.0) {
-            return Err(format!("capture {i}: no signal above the noise in channel {} inside the crop", ["R", "G", "B"][ch]));
+            return Err(CalibrateError::NoSignal { index: i, channel: ["R", "G", "B"][ch] });
         }
         psfs.push(Psf { size: o.size, channels });
         entries.push(Entry { dark: level, noise, centroid: own, crop: [x0, y0], signal, inside });
@@ -196,6 +212,6 @@ mod tests {
             assert!((psfs[0].channel_sum(c) - 1.0).abs() < 1e-5);
         }
         let err = calibrate(&[Planes { width: 4, height: 4, rgb: std::array::from_fn(|_| vec![0.0; 16]) }], None, &o).unwrap_err();
-        assert!(err.contains("at most"), "{err}");
+        assert_eq!(err, CalibrateError::Crop { size: 5, width: 4, height: 4 });
     }
 }

@@ -16,7 +16,7 @@
 
 use super::config::PsfAxis;
 use super::config::{Axis, CameraConfig, CameraKind, OpticsConfig, PsiSchedule};
-use super::measured::Stack;
+use super::measured::{Stack, StackError};
 use super::psf::{Lens, Psf};
 use crate::checks::ConfigError;
 use std::collections::HashMap;
@@ -94,7 +94,7 @@ pub struct Camera {
     cfg: CameraConfig,
     lens: Option<Lens>,
     /// The `measured` camera's stack, or why it could not be read.
-    stack: Option<Result<Arc<Stack>, String>>,
+    stack: Option<Result<Arc<Stack>, Arc<StackError>>>,
     /// PSFs by psi bits: different N that share a psi share the PSF.
     psfs: Mutex<HashMap<u64, Arc<Psf>>>,
     windows: Mutex<HashMap<usize, Arc<Vec<SubframeKernel>>>>,
@@ -118,8 +118,8 @@ impl Camera {
             _ => None,
         };
         let stack = (cfg.kind == CameraKind::Measured).then(|| match &cfg.psf_path {
-            Some(p) => Stack::read(p, cfg.psf_normalise).map(Arc::new),
-            None => Err("the measured camera needs a PSF stack (.npy, (K, H, W, 3))".into()),
+            Some(p) => Stack::read(p, cfg.psf_normalise).map(Arc::new).map_err(Arc::new),
+            None => Err(Arc::new(StackError::Missing)),
         });
         Camera {
             optics: optics.clone(),
@@ -312,8 +312,13 @@ impl Camera {
 
     /// The window of the `measured` camera: each sub-frame's PSF from the stack, untrimmed (a
     /// stack is used as measured), equal weights, no shift.
-    fn measured_window(&self, n: usize, stack: &Result<Arc<Stack>, String>, psis: &[f64]) -> Result<Arc<Vec<SubframeKernel>>, ConfigError> {
-        let stack = stack.as_ref().map_err(|e| ConfigError { key: "camera.psf_path".into(), message: e.clone() })?;
+    fn measured_window(
+        &self,
+        n: usize,
+        stack: &Result<Arc<Stack>, Arc<StackError>>,
+        psis: &[f64],
+    ) -> Result<Arc<Vec<SubframeKernel>>, ConfigError> {
+        let stack = stack.as_ref().map_err(|e| ConfigError { key: "camera.psf_path".into(), message: e.to_string() })?;
         let kernels: Vec<SubframeKernel> = (0..n)
             .map(|j| {
                 let psf = match self.cfg.psf_over {

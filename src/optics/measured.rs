@@ -24,11 +24,36 @@ pub fn check(camera: &super::CameraConfig, prefix: &str) -> Vec<crate::checks::C
     match (&camera.psf_path, camera.kind) {
         (Some(p), super::CameraKind::Measured) => match Stack::read(p, camera.psf_normalise) {
             Ok(_) => Vec::new(),
-            Err(message) => vec![crate::checks::ConfigError { key: format!("{prefix}.psf_path"), message }],
+            Err(e) => vec![crate::checks::ConfigError { key: format!("{prefix}.psf_path"), message: e.to_string() }],
         },
         _ => Vec::new(),
     }
 }
+
+/// Why a PSF stack was refused: the rule it breaks, with the entry, pixel and channel.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum StackError {
+    #[error("the measured camera needs a PSF stack (camera.psf_path, .npy (K, H, W, 3))")]
+    Missing,
+    #[error("{}: {source}", path.display())]
+    Read { path: std::path::PathBuf, source: std::io::Error },
+    #[error("{}: {source}", path.display())]
+    Npy { path: std::path::PathBuf, source: npy::NpyError },
+    #[error("shape {0:?}: a PSF stack is (K, H, W, 3) with 1 to 4096 entries")]
+    Shape(Vec<usize>),
+    #[error("entries of {0}x{1}: a PSF needs odd sides (its centre a pixel) of at most 1025")]
+    Sides(usize, usize),
+    #[error("entry {entry}, pixel ({x}, {y}), channel {channel}: {value} (a PSF is finite and non-negative)")]
+    Value { entry: usize, x: usize, y: usize, channel: &'static str, value: f32 },
+    #[error("entry {entry}, channel {channel}: sums to {sum:.4}, not 1 (set psf_normalise = true to rescale it)")]
+    Sum { entry: usize, channel: &'static str, sum: f64 },
+    /// A rule broken by the array of a named file.
+    #[error("{}: {source}", path.display())]
+    In { path: std::path::PathBuf, source: Box<StackError> },
+}
+
+const CHANNELS: [&str; 3] = ["R", "G", "B"];
 
 /// How far a channel's sum may be from 1 before a stack is refused (without `psf_normalise`).
 pub const SUM_TOLERANCE: f64 = 0.01;
@@ -45,35 +70,29 @@ impl Stack {
     /// # Errors
     /// Not a float32 `.npy` of shape (K, H, W, 3); a value that is not finite or is negative; an
     /// even H or W; a channel whose sum is not 1 within [`SUM_TOLERANCE`] (unless `normalise`).
-    pub fn read(path: &Path, normalise: bool) -> Result<Stack, String> {
-        let bytes = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
-        let (shape, data) = npy::read_f32(&bytes).map_err(|e| format!("{}: {e}", path.display()))?;
-        Stack::from_array(&shape, &data, normalise).map_err(|e| format!("{}: {e}", path.display()))
+    pub fn read(path: &Path, normalise: bool) -> Result<Stack, StackError> {
+        let bytes = std::fs::read(path).map_err(|source| StackError::Read { path: path.into(), source })?;
+        let (shape, data) = npy::read_f32(&bytes).map_err(|source| StackError::Npy { path: path.into(), source })?;
+        Stack::from_array(&shape, &data, normalise).map_err(|e| StackError::In { path: path.into(), source: Box::new(e) })
     }
 
     /// As [`Stack::read`], from the array itself.
     ///
     /// # Errors
     /// As [`Stack::read`].
-    pub fn from_array(shape: &[usize], data: &[f32], normalise: bool) -> Result<Stack, String> {
-        let &[k, h, w, c] = shape else {
-            return Err(format!("shape {shape:?}: a PSF stack is (K, H, W, 3)"));
+    pub fn from_array(shape: &[usize], data: &[f32], normalise: bool) -> Result<Stack, StackError> {
+        let &[k, h, w, 3] = shape else {
+            return Err(StackError::Shape(shape.to_vec()));
         };
-        if c != 3 || k == 0 || k > 4096 {
-            return Err(format!("shape {shape:?}: a PSF stack is (K, H, W, 3) with 1 to 4096 entries"));
+        if k == 0 || k > 4096 {
+            return Err(StackError::Shape(shape.to_vec()));
         }
         if h.is_multiple_of(2) || w.is_multiple_of(2) || h > 1025 || w > 1025 {
-            return Err(format!("entries of {h}x{w}: a PSF needs odd sides (its centre a pixel) of at most 1025"));
+            return Err(StackError::Sides(h, w));
         }
         if let Some(i) = data.iter().position(|v| !v.is_finite() || *v < 0.0) {
             let (entry, rest) = (i / (h * w * 3), i % (h * w * 3));
-            return Err(format!(
-                "entry {entry}, pixel ({}, {}), channel {}: {} (a PSF is finite and non-negative)",
-                rest / 3 % w,
-                rest / 3 / w,
-                ["R", "G", "B"][rest % 3],
-                data[i]
-            ));
+            return Err(StackError::Value { entry, x: rest / 3 % w, y: rest / 3 / w, channel: CHANNELS[rest % 3], value: data[i] });
         }
         let n = h.max(w);
         let (oy, ox) = ((n - h) / 2, (n - w) / 2);
@@ -92,10 +111,7 @@ impl Stack {
                 if normalise && sum > 0.0 {
                     plane.iter_mut().for_each(|v| *v = (*v as f64 / sum) as f32);
                 } else if (sum - 1.0).abs() > SUM_TOLERANCE {
-                    return Err(format!(
-                        "entry {e}, channel {}: sums to {sum:.4}, not 1 (set psf_normalise = true to rescale it)",
-                        ["R", "G", "B"][ch]
-                    ));
+                    return Err(StackError::Sum { entry: e, channel: CHANNELS[ch], sum });
                 }
             }
             psfs.push(Psf { size: n, channels });
@@ -159,17 +175,17 @@ mod tests {
     #[test]
     fn a_bad_stack_is_refused_with_the_rule_it_breaks() {
         let (s, d) = stack(2, 4, 3, |_, _, _, _| 1.0 / 12.0);
-        assert!(Stack::from_array(&s, &d, false).unwrap_err().contains("odd sides"));
+        assert!(matches!(Stack::from_array(&s, &d, false).unwrap_err(), StackError::Sides(4, 3)));
         let (s, mut d) = stack(2, 3, 3, |_, _, _, _| 1.0 / 9.0);
         d[9 * 3 + 4 * 3 + 1] = f32::NAN;
-        let e = Stack::from_array(&s, &d, false).unwrap_err();
+        let e = Stack::from_array(&s, &d, false).unwrap_err().to_string();
         assert!(e.contains("entry 1, pixel (1, 1), channel G") && e.contains("non-negative"), "{e}");
         let (s, d) = stack(2, 3, 3, |e, _, _, c| if e == 1 && c == 2 { 0.1 } else { 1.0 / 9.0 });
-        let err = Stack::from_array(&s, &d, false).unwrap_err();
+        let err = Stack::from_array(&s, &d, false).unwrap_err().to_string();
         assert!(err.contains("entry 1, channel B: sums to 0.9000"), "{err}");
         let ok = Stack::from_array(&s, &d, true).unwrap();
         assert!((ok.psfs[1].channel_sum(2) - 1.0).abs() < 1e-6);
-        assert!(Stack::from_array(&[2, 3, 3], &d[..18], false).unwrap_err().contains("(K, H, W, 3)"));
+        assert!(matches!(Stack::from_array(&[2, 3, 3], &d[..18], false).unwrap_err(), StackError::Shape(_)));
     }
 
     #[test]
