@@ -16,7 +16,8 @@ pub enum Error {
     /// that does not parse or does not fit), named, with why.
     #[error("{}: {why}", path.display())]
     File { path: PathBuf, why: String },
-    /// A file one of the format readers refused (PNG, tar, `.npy`, safetensors, JSON), named;
+    /// A file one of the format readers refused (PNG, tar, `.npy`, safetensors, JSON), named (a
+    /// shard's member as `shard.tar/member`);
     /// the reader's own error is kept, typed, in `cause` and is part of the message (as in `Io`).
     #[error("{}: {cause}", path.display())]
     Format { path: PathBuf, cause: Box<FormatError> },
@@ -85,8 +86,6 @@ pub enum FormatError {
     Weights(#[from] crate::model::weights::WeightsError),
     #[error("{0}")]
     Json(#[from] serde_json::Error),
-    #[error("{0}")]
-    Toml(#[from] toml::de::Error),
 }
 
 impl Error {
