@@ -143,4 +143,8 @@ fn calibrate_recovers_a_known_stack_from_noisy_shifted_point_source_captures() {
     assert!(stderr(&o).contains("--overwrite"));
     let path = format!("transforms.blur.camera.psf_path={:?}", out.to_str().unwrap());
     ok(&generate(&d.join("shards"), &[FIXTURE], &["sources.video.max_frames=9", "transforms.blur.camera.type=\"measured\"", &path]));
+    // A capture folder that is not there is a usage error naming it.
+    let o = run(&["calibrate", d.join("nothing").to_str().unwrap(), "-o", d.join("x.npy").to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("nothing: no such file or folder"), "{}", stderr(&o));
 }
