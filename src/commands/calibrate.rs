@@ -90,13 +90,11 @@ pub fn command(a: CalibrateArgs) -> anyhow::Result<()> {
         return Err(Error::Usage(format!("{}: the stack is written as .npy", a.out.display())).into());
     }
     let (report, sheet) = (a.out.with_extension("json"), a.out.with_extension("png"));
+    let files = crate::io::paths::expand_paths(&a.captures, &["png", "tif", "tiff", "exr"])?;
     // A capture path that names nothing is a usage error (exit 2), as in `deblur`.
-    let files = crate::io::paths::expand_paths(&a.captures, &["png", "tif", "tiff", "exr"]).map_err(|e| match e {
-        Error::Io { path, cause } if cause.kind() == std::io::ErrorKind::NotFound => {
-            Error::Usage(format!("{}: no such file or folder", path.display()))
-        }
-        e => e,
-    })?;
+    if let Some(f) = files.iter().chain(&a.dark).find(|f| std::fs::symlink_metadata(f).is_err()) {
+        return Err(Error::Usage(format!("{}: no such file or folder", f.display())).into());
+    }
     let outputs = [a.out.clone(), report.clone(), sheet.clone()];
     crate::io::paths::refuse_replacing_inputs(&outputs, &files)?;
     let found: Vec<PathBuf> = outputs.iter().filter(|p| p.exists()).cloned().collect();
