@@ -156,10 +156,8 @@ pub fn train(cfg: &TrainConfig, opts: &TrainOptions) -> Result<TrainReport> {
         }
         drop(found);
         t.resumed_data = Some(format!("restored from {}", StreamState::path(&t.dir, t.step).display()));
-    } else if t.step > 0 {
-        if !replay(&mut t, &mut stream, cfg)? {
-            return Err(stopped("replaying the data order up to the resumed step"));
-        }
+    } else if t.step > 0 && !replay(&mut t, &mut stream, cfg)? {
+        return Err(stopped("replaying the data order up to the resumed step"));
     }
     if let Some(how) = &t.resumed_data {
         eprintln!("resuming after step {}: the data order {how}", t.step);
