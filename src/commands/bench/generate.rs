@@ -316,6 +316,7 @@ pub fn generate(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> c
 
 /// One mode of `bench generate` run `repeats` times on `clip` into `dir/out`: the median rate
 /// against FFmpeg's and our decoder's (`decode`: frames/s of each) and the peak memory.
+#[cfg(feature = "ffmpeg")]
 fn generate_row(
     mode: &str,
     clip: &std::path::Path,
