@@ -14,8 +14,7 @@
 //! assert_eq!(window.len(), 9);
 //! ```
 
-use super::config::PsfAxis;
-use super::config::{Axis, CameraConfig, CameraKind, OpticsConfig, PsiSchedule};
+use super::config::{Axis, CameraConfig, CameraKind, OpticsConfig, PsfAxis, PsiSchedule};
 use super::measured::{Stack, StackError};
 use super::psf::{Lens, Psf};
 use crate::checks::ConfigError;
