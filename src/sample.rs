@@ -78,7 +78,17 @@ pub fn content_hash(resolved: &toml::Table) -> String {
     fn strip(v: &toml::Value) -> toml::Value {
         match v {
             toml::Value::Table(t) => toml::Value::Table(
-                t.iter().filter(|(k, _)| !matches!(k.as_str(), "paths" | "threads")).map(|(k, v)| (k.clone(), strip(v))).collect(),
+                t.iter()
+                    .filter(|(k, _)| !matches!(k.as_str(), "paths" | "threads"))
+                    .map(|(k, v)| match (k.as_str(), v.as_str()) {
+                        // A measured camera's samples follow its stack's bytes, not its file name:
+                        // a stack calibrated again under the same name redoes the inputs.
+                        ("psf_path", Some(p)) => {
+                            (k.clone(), std::fs::read(p).map_or(v.clone(), |b| crate::rng::hash_bytes(&b).to_string().into()))
+                        }
+                        _ => (k.clone(), strip(v)),
+                    })
+                    .collect(),
             ),
             v => v.clone(),
         }
@@ -90,4 +100,25 @@ pub fn content_hash(resolved: &toml::Table) -> String {
         }
     }
     format!("{:016x}", crate::rng::hash_bytes(toml::to_string(&t).unwrap_or_default().as_bytes()))
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_content_hash_follows_a_measured_stack_by_its_bytes_not_its_name() {
+        let d = std::env::temp_dir().join(format!("pipeline-hash-{}", std::process::id()));
+        std::fs::create_dir_all(&d).unwrap();
+        let table = |p: &std::path::Path| -> toml::Table {
+            toml::from_str(&format!("seed = 1\n[transforms.blur.camera]\ntype = \"measured\"\npsf_path = {:?}\n", p.to_str().unwrap()))
+                .unwrap()
+        };
+        let (a, b) = (d.join("a.npy"), d.join("b.npy"));
+        std::fs::write(&a, b"one stack").unwrap();
+        std::fs::write(&b, b"one stack").unwrap();
+        let first = super::content_hash(&table(&a));
+        assert_eq!(first, super::content_hash(&table(&b)), "the same bytes under another name");
+        std::fs::write(&a, b"calibrated again").unwrap();
+        assert_ne!(first, super::content_hash(&table(&a)), "new bytes under the same name");
+        let _ = std::fs::remove_dir_all(&d);
+    }
 }
