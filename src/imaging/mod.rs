@@ -6,6 +6,7 @@
 //! - here: the noise a camera adds for its light throughput, and 8-bit <-> linear conversions.
 
 pub mod blur;
+pub mod demosaic;
 pub mod noise;
 pub mod sensor;
 pub mod truth;

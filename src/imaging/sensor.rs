@@ -7,6 +7,7 @@
 //! ISO: at a higher ISO the same output level is made of fewer electrons, so shot noise grows).
 //! The read-out is `min(electrons + read noise, full_well) * gain / full_well`, clipped to [0, 1].
 
+pub use super::demosaic::{demosaic_bilinear, demosaic_malvar, Demosaic};
 use crate::rng::{hash, normal, unit};
 
 /// The colour of each site of a 2x2 Bayer tile, in reading order (0 R, 1 G, 2 B).
@@ -41,6 +42,8 @@ pub struct Sensor {
     pub read_noise: f64,
     /// ISO / base ISO (1 at base ISO).
     pub gain: f64,
+    /// How a mosaic's missing colours are filled in.
+    pub demosaic: Demosaic,
 }
 
 /// A Poisson draw of mean `lambda` from the key: exact (inversion of the CDF) below 64, the
@@ -73,7 +76,7 @@ impl Sensor {
     }
 
     /// The read-out of a `w x h` patch at (x0, y0) of its frame: every channel of every pixel,
-    /// or with `cfa` the one colour of each site, then demosaiced bilinearly.
+    /// or with `cfa` the one colour of each site, then demosaiced ([`Sensor::demosaic`]).
     pub fn capture(&self, p: &[Vec<f32>; 3], w: usize, h: usize, (x0, y0): (usize, usize), cfa: Option<Bayer>, key: u64) -> [Vec<f32>; 3] {
         let site = |x: usize, y: usize, c: usize| hash(&[key, (y0 + y) as u64, (x0 + x) as u64, c as u64]);
         match cfa {
@@ -86,55 +89,13 @@ impl Sensor {
                         self.read(p[c][i], site(x, y, c))
                     })
                     .collect();
-                demosaic_bilinear(&raw, w, h, (x0, y0), b)
-            }
-        }
-    }
-}
-
-/// Bilinear demosaicing: each missing colour is the mean of the nearest sites of that colour (the
-/// 2 or 4 neighbours), borders mirrored inside the patch. `(x0, y0)` places the patch on the
-/// frame's colour filter array.
-pub fn demosaic_bilinear(raw: &[f32], w: usize, h: usize, (x0, y0): (usize, usize), b: Bayer) -> [Vec<f32>; 3] {
-    let at = |x: isize, y: isize| {
-        let m = |v: isize, n: usize| -> usize {
-            let n = n as isize;
-            let v = if v < 0 {
-                -v
-            } else if v >= n {
-                2 * n - 2 - v
-            } else {
-                v
-            };
-            v.clamp(0, n - 1) as usize
-        };
-        let (x, y) = (m(x, w), m(y, h));
-        (raw[y * w + x], b.colour(x0 + x, y0 + y))
-    };
-    let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0; w * h]);
-    for y in 0..h as isize {
-        for x in 0..w as isize {
-            let i = y as usize * w + x as usize;
-            let (v, own) = at(x, y);
-            for (c, plane) in out.iter_mut().enumerate() {
-                if c == own {
-                    plane[i] = v;
-                    continue;
+                match self.demosaic {
+                    Demosaic::Bilinear => demosaic_bilinear(&raw, w, h, (x0, y0), b),
+                    Demosaic::Malvar => demosaic_malvar(&raw, w, h, (x0, y0), b),
                 }
-                // The neighbours of colour c: the 4 edge neighbours, else the 4 diagonal ones.
-                let pick = |offsets: &[(isize, isize)]| {
-                    let (s, n) = offsets
-                        .iter()
-                        .map(|&(dx, dy)| at(x + dx, y + dy))
-                        .filter(|&(_, k)| k == c)
-                        .fold((0.0f32, 0u32), |(s, n), (v, _)| (s + v, n + 1));
-                    (n > 0).then(|| s / n as f32)
-                };
-                plane[i] = pick(&[(-1, 0), (1, 0), (0, -1), (0, 1)]).or_else(|| pick(&[(-1, -1), (1, -1), (-1, 1), (1, 1)])).unwrap_or(v);
             }
         }
     }
-    out
 }
 
 #[cfg(test)]
@@ -152,7 +113,7 @@ mod tests {
         for (full_well, read, gain, v) in
             [(1000.0, 5.0, 1.0, 0.3f32), (20000.0, 3.0, 8.0, 0.1), (50.0, 0.0, 1.0, 0.5), (4000.0, 2.0, 4.0, 0.02)]
         {
-            let s = Sensor { full_well, read_noise: read, gain };
+            let s = Sensor { full_well, read_noise: read, gain, demosaic: Demosaic::Bilinear };
             let scale = full_well / gain;
             let draws: Vec<f64> = (0..40_000u64).map(|i| f64::from(s.read(v, hash(&[7, i])))).collect();
             let (m, var) = mean_var(&draws);
@@ -173,12 +134,12 @@ mod tests {
 
     #[test]
     fn saturation_clips_at_the_full_well() {
-        let s = Sensor { full_well: 1000.0, read_noise: 2.0, gain: 2.0 };
+        let s = Sensor { full_well: 1000.0, read_noise: 2.0, gain: 2.0, demosaic: Demosaic::Bilinear };
         // Light beyond the full well (v * 500 electrons > 1000 for v > 2: a highlight) reads 1.
         assert_eq!(s.read(3.0, 1), 1.0);
         assert_eq!(s.read(10.0, 2), 1.0);
         assert!(s.read(0.5, 3) < 1.0);
-        let s = Sensor { full_well: 100.0, read_noise: 0.0, gain: 1.0 };
+        let s = Sensor { full_well: 100.0, read_noise: 0.0, gain: 1.0, demosaic: Demosaic::Bilinear };
         assert_eq!(s.read(1.0, 4).max(s.read(1.0, 5)), 1.0);
     }
 
@@ -217,7 +178,7 @@ mod tests {
 
     #[test]
     fn a_patch_gets_the_noise_of_its_place_in_the_frame() {
-        let s = Sensor { full_well: 5000.0, read_noise: 3.0, gain: 2.0 };
+        let s = Sensor { full_well: 5000.0, read_noise: 3.0, gain: 2.0, demosaic: Demosaic::Bilinear };
         let (w, h) = (12, 10);
         let frame: [Vec<f32>; 3] = std::array::from_fn(|c| (0..w * h).map(|i| ((i * 7 + c * 3) % 11) as f32 / 11.0).collect());
         let whole = s.capture(&frame, w, h, (0, 0), None, 99);

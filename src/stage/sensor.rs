@@ -38,6 +38,10 @@ pub struct SensorConfig {
     /// every colour at every pixel (no mosaic).
     #[serde(default)]
     pub bayer: Option<Bayer>,
+    /// How the mosaic is filled in: `bilinear` or `malvar` (Malvar-He-Cutler's gradient-corrected
+    /// 5x5 filters).
+    #[serde(default)]
+    pub demosaic: crate::imaging::sensor::Demosaic,
 }
 
 fn d_full_well() -> f64 {
@@ -97,7 +101,8 @@ impl Transform for SensorStage {
         };
         let [lo, hi] = self.cfg.iso;
         let iso = (lo.ln() + (hi.ln() - lo.ln()) * unit(hash(&[self.seed, s.input.id, s.window, hash_str("iso")]))).exp();
-        let sensor = Sensor { full_well: self.cfg.full_well, read_noise: self.cfg.read_noise, gain: iso / BASE_ISO };
+        let sensor =
+            Sensor { full_well: self.cfg.full_well, read_noise: self.cfg.read_noise, gain: iso / BASE_ISO, demosaic: self.cfg.demosaic };
         let key = hash(&[self.seed, s.input.id, s.window, hash_str("sensor")]);
         let enc = self.encoder(s.curve);
         for p in &mut s.pairs {
@@ -118,7 +123,7 @@ impl Transform for SensorStage {
         let capture = serde_json::json!({
             "sensor": {
                 "full_well": sensor.full_well, "read_noise": sensor.read_noise, "iso": iso, "gain": sensor.gain,
-                "bayer": self.cfg.bayer, "demosaic": self.cfg.bayer.map(|_| "bilinear"),
+                "bayer": self.cfg.bayer, "demosaic": self.cfg.bayer.map(|_| self.cfg.demosaic),
                 "response": s.curve.name(),
             }
         });

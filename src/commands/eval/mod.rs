@@ -92,13 +92,15 @@ pub struct EvalSensor {
     pub full_well: f64,
     pub read_noise: f64,
     pub iso: f64,
-    /// The colour filter array (`rggb`, ...), demosaiced bilinearly; absent: no mosaic.
+    /// The colour filter array (`rggb`, ...); absent: no mosaic.
     pub bayer: Option<crate::imaging::sensor::Bayer>,
+    /// How the mosaic is filled in (`bilinear`, `malvar`).
+    pub demosaic: crate::imaging::sensor::Demosaic,
 }
 
 impl Default for EvalSensor {
     fn default() -> Self {
-        EvalSensor { full_well: 5000.0, read_noise: 3.0, iso: 800.0, bayer: None }
+        EvalSensor { full_well: 5000.0, read_noise: 3.0, iso: 800.0, bayer: None, demosaic: Default::default() }
     }
 }
 
@@ -129,6 +131,7 @@ impl EvalSensor {
             full_well: self.full_well,
             read_noise: self.read_noise,
             gain: self.iso / crate::stage::sensor::BASE_ISO,
+            demosaic: self.demosaic,
         };
         s.capture(planes, w, h, (x, y), self.bayer, crate::rng::hash(&[key, crate::rng::hash_str("eval-sensor")]))
     }

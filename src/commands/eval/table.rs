@@ -114,7 +114,7 @@ pub fn markdown(r: &EvalReport) -> String {
             sn.iso,
             sn.full_well,
             sn.read_noise,
-            sn.bayer.map_or("no mosaic".to_string(), |b| format!("{b:?} mosaic, bilinear demosaicing").to_uppercase())
+            sn.bayer.map_or("no mosaic".to_string(), |b| format!("{b:?} mosaic, {:?} demosaicing", sn.demosaic).to_uppercase())
         ));
     }
     s.push_str(&format!("## Table 1 layout: PSNR dB / SSIM, mean over sigma in {{{}}}\n\n", sig.join(", ")));
