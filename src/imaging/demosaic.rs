@@ -5,7 +5,28 @@
 //! colour to the bilinear estimate, so edges keep their colour better). Borders are mirrored
 //! inside the patch; `(x0, y0)` places the patch on the frame's colour filter array.
 
-use super::sensor::Bayer;
+/// The colour of each site of a 2x2 Bayer tile, in reading order (0 R, 1 G, 2 B).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Bayer {
+    Rggb,
+    Bggr,
+    Grbg,
+    Gbrg,
+}
+
+impl Bayer {
+    /// The colour sampled at frame position (x, y).
+    pub fn colour(self, x: usize, y: usize) -> usize {
+        let tile = match self {
+            Bayer::Rggb => [0, 1, 1, 2],
+            Bayer::Bggr => [2, 1, 1, 0],
+            Bayer::Grbg => [1, 0, 2, 1],
+            Bayer::Gbrg => [1, 2, 0, 1],
+        };
+        tile[(y % 2) * 2 + x % 2]
+    }
+}
 
 /// Which demosaicing.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]

@@ -7,31 +7,8 @@
 //! ISO: at a higher ISO the same output level is made of fewer electrons, so shot noise grows).
 //! The read-out is `min(electrons + read noise, full_well) * gain / full_well`, clipped to [0, 1].
 
-pub use super::demosaic::{demosaic_bilinear, demosaic_malvar, Demosaic};
+pub use super::demosaic::{demosaic_bilinear, demosaic_malvar, Bayer, Demosaic};
 use crate::rng::{hash, normal, unit};
-
-/// The colour of each site of a 2x2 Bayer tile, in reading order (0 R, 1 G, 2 B).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Bayer {
-    Rggb,
-    Bggr,
-    Grbg,
-    Gbrg,
-}
-
-impl Bayer {
-    /// The colour sampled at frame position (x, y).
-    pub fn colour(self, x: usize, y: usize) -> usize {
-        let tile = match self {
-            Bayer::Rggb => [0, 1, 1, 2],
-            Bayer::Bggr => [2, 1, 1, 0],
-            Bayer::Grbg => [1, 0, 2, 1],
-            Bayer::Gbrg => [1, 2, 0, 1],
-        };
-        tile[(y % 2) * 2 + x % 2]
-    }
-}
 
 /// The sensor's constants.
 #[derive(Debug, Clone, Copy, PartialEq)]
