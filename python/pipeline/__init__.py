@@ -182,14 +182,8 @@ def psf(camera="phase_coded", psi=None, window=None, config=None, airy_radius_px
     return _native.psf(camera, None if spec else psi, window, None if config is None else os.fspath(config), airy_radius_px, spec)
 
 
-def deblur(image, model=None):
-    """Runs a trained network (``pipeline deblur``'s fast CPU path) on one image.
-
-    image: (3, H, W) float in [0, 1], encoded sRGB (uint8 or uint16 codes are scaled to it); model: a model file or folder written by
-    ``pipeline train`` or ``pipeline export`` (None: the default coded U-Net; the last model used
-    stays loaded, so a file rewritten under the same path is not read again). Returns the
-    network's (3, H, W) float32 output, not clamped or quantised.
-    """
+def _image(image):
+    """A (3, H, W) image as contiguous float32 in [0, 1]; integer pixels are the codes of their type."""
     import numpy as np
 
     a = np.asarray(image)
@@ -200,8 +194,18 @@ def deblur(image, model=None):
         a = a.astype(np.float32) / float(np.iinfo(a.dtype).max)
     elif a.dtype.kind != "f":
         raise ValueError(f"image of dtype {a.dtype}: expected float in [0, 1] or integer codes (uint8, uint16)")
-    x = np.ascontiguousarray(a, dtype=np.float32)
-    return _native.deblur(x, None if model is None else os.fspath(model))
+    return np.ascontiguousarray(a, dtype=np.float32)
+
+
+def deblur(image, model=None):
+    """Runs a trained network (``pipeline deblur``'s fast CPU path) on one image.
+
+    image: (3, H, W) float in [0, 1], encoded sRGB (uint8 or uint16 codes are scaled to it); model: a model file or folder written by
+    ``pipeline train`` or ``pipeline export`` (None: the default coded U-Net; the last model used
+    stays loaded, so a file rewritten under the same path is not read again). Returns the
+    network's (3, H, W) float32 output, not clamped or quantised.
+    """
+    return _native.deblur(_image(image), None if model is None else os.fspath(model))
 
 
 def deblur_burst(image, k=9, model=None, camera=None):
@@ -213,17 +217,7 @@ def deblur_burst(image, k=9, model=None, camera=None):
     the command runs it, and the part that does not depend on the time once. Returns (k, 3, H, W)
     float32 in [0, 1].
     """
-    import numpy as np
-
-    a = np.asarray(image)
-    if a.ndim != 3 or a.shape[0] != 3:
-        raise ValueError(f"image of shape {a.shape}: expected (3, H, W)")
-    if a.dtype.kind in "ui":
-        a = a.astype(np.float32) / float(np.iinfo(a.dtype).max)
-    elif a.dtype.kind != "f":
-        raise ValueError(f"image of dtype {a.dtype}: expected float in [0, 1] or integer codes (uint8, uint16)")
-    x = np.ascontiguousarray(a, dtype=np.float32)
-    return _native.deblur_burst(x, int(k), None if model is None else os.fspath(model), camera)
+    return _native.deblur_burst(_image(image), int(k), None if model is None else os.fspath(model), camera)
 
 
 def to_torch(sample):

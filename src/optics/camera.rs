@@ -286,9 +286,18 @@ impl Camera {
         }
         self.stats.lock().unwrap().window_misses += 1;
         let psis = self.psi_schedule(n)?;
-        if let Some(stack) = &self.stack {
-            return self.measured_window(n, stack, &psis);
-        }
+        let kernels = match &self.stack {
+            Some(stack) => self.measured_kernels(n, stack, &psis)?,
+            None => self.computed_kernels(n, &psis),
+        };
+        let w = Arc::new(kernels);
+        self.windows.lock().unwrap().insert(n, w.clone());
+        Ok(w)
+    }
+
+    /// The computed cameras' kernels of a window: the PSFs of its psi values (in parallel on all
+    /// cores, each once per camera), trimmed to one common size.
+    fn computed_kernels(&self, n: usize, psis: &[f64]) -> Vec<SubframeKernel> {
         let psfs: Vec<Arc<Psf>> = {
             use rayon::prelude::*;
             psis.par_iter().map(|&p| self.psf_for(p)).collect()
@@ -296,29 +305,26 @@ impl Camera {
         // One common size for the window: the largest that any kernel needs.
         let half = psfs.iter().map(|p| p.needed_half(self.optics.trim_energy)).max().unwrap_or(0);
         let (weights, shifts) = (self.weights(n), self.shifts(n));
-        let kernels: Vec<SubframeKernel> = (0..n)
+        (0..n)
             .map(|k| SubframeKernel {
                 psf: if psfs[k].half() == half { psfs[k].clone() } else { Arc::new(psfs[k].resized(half)) },
                 weight: weights[k],
                 shift: shifts[k],
                 psi: psis[k],
             })
-            .collect();
-        let w = Arc::new(kernels);
-        self.windows.lock().unwrap().insert(n, w.clone());
-        Ok(w)
+            .collect()
     }
 
-    /// The window of the `measured` camera: each sub-frame's PSF from the stack, untrimmed (a
+    /// The kernels of a `measured` camera's window: each sub-frame's PSF from the stack, untrimmed (a
     /// stack is used as measured), equal weights, no shift.
-    fn measured_window(
+    fn measured_kernels(
         &self,
         n: usize,
         stack: &Result<Arc<Stack>, Arc<StackError>>,
         psis: &[f64],
-    ) -> Result<Arc<Vec<SubframeKernel>>, ConfigError> {
+    ) -> Result<Vec<SubframeKernel>, ConfigError> {
         let stack = stack.as_ref().map_err(|e| ConfigError { key: "camera.psf_path".into(), message: e.to_string() })?;
-        let kernels: Vec<SubframeKernel> = (0..n)
+        Ok((0..n)
             .map(|j| {
                 let psf = match self.cfg.psf_over {
                     PsfAxis::Instants => stack.at_instant(j, n),
@@ -326,10 +332,7 @@ impl Camera {
                 };
                 SubframeKernel { psf: Arc::new(psf), weight: 1.0 / n as f64, shift: [0.0; 2], psi: psis[j] }
             })
-            .collect();
-        let w = Arc::new(kernels);
-        self.windows.lock().unwrap().insert(n, w.clone());
-        Ok(w)
+            .collect())
     }
 }
 

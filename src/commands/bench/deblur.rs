@@ -125,17 +125,6 @@ fn median_time(repeats: usize, f: &dyn Fn()) -> f64 {
     median(&mut t)
 }
 
-/// What `benches/torch_models.py` prints for `args`, on as many threads as ours.
-fn torch_json(script: &std::path::Path, args: &[&str]) -> Option<serde_json::Value> {
-    std::process::Command::new(python())
-        .arg(script)
-        .env("TORCH_THREADS", rayon::current_num_threads().to_string())
-        .args(args)
-        .output()
-        .ok()
-        .and_then(|o| serde_json::from_slice(&o.stdout).ok())
-}
-
 /// `--burst k`: k frames of one capture against k single-frame passes of the same network, and
 /// PyTorch's time for the same k frames when torch is installed.
 fn burst_speed(

@@ -64,6 +64,19 @@ pub(super) fn torch_script() -> Option<std::path::PathBuf> {
     (python_imports("torch") && script.exists()).then_some(script)
 }
 
+/// What `benches/torch_models.py` prints for `args` (one JSON object), run on as many threads as
+/// ours; `None` when it fails.
+#[cfg(feature = "infer")]
+pub(super) fn torch_json(script: &std::path::Path, args: &[&str]) -> Option<serde_json::Value> {
+    std::process::Command::new(python())
+        .arg(script)
+        .env("TORCH_THREADS", rayon::current_num_threads().to_string())
+        .args(args)
+        .output()
+        .ok()
+        .and_then(|o| serde_json::from_slice(&o.stdout).ok())
+}
+
 /// Resets the peak-RSS counter (Linux 4.0+); false where unsupported.
 pub fn reset_peak_rss() -> bool {
     std::fs::write("/proc/self/clear_refs", "5").is_ok()

@@ -184,13 +184,7 @@ pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize, rounds:
                 crate::model::Arch::BurstUnet { base } => ("burst_unet", base),
                 crate::model::Arch::Shallow { width } => ("shallow", width),
             };
-            std::process::Command::new(python())
-                .arg(script.as_ref()?)
-                .args([kind, &width.to_string(), &batch.to_string(), &repeats.to_string()])
-                .env("TORCH_THREADS", threads.to_string())
-                .output()
-                .ok()
-                .and_then(|o| serde_json::from_slice(&o.stdout).ok())
+            torch_json(script.as_ref()?, &[kind, &width.to_string(), &batch.to_string(), &repeats.to_string()])
         };
         let mut engines: Vec<(&'static str, fn(crate::model::Arch, usize, usize) -> (Vec<f64>, Vec<f64>))> = vec![("fast", time_fast)];
         if with_burn {
