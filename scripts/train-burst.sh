@@ -11,6 +11,9 @@
 #   DATA=../data RUNS=../runs STEPS=20000 WIDTH=32 bash scripts/train-burst.sh conventional
 #   INIT=models/burst-unet32-coded STEPS=1500 LR=2.4e-4 WARMUP=20 bash scripts/train-burst.sh phase_coded
 #                                                      # continue from a shipped burst model
+#   LEVELS=4 INIT=models/burst-unet32-coded bash scripts/train-burst.sh phase_coded
+#                                                      # told the time on every decoder level
+#                                                      # ($RUNS/burst-unet32-film4-phase_coded)
 #
 # Needs the photographs of docs/training-data.sh (STEP=photos bash docs/training-data.sh).
 set -euo pipefail
@@ -22,6 +25,7 @@ STEPS=${STEPS:-20000}
 WIDTH=${WIDTH:-32}
 LR=${LR:-3e-4}
 WARMUP=${WARMUP:-200}
+LEVELS=${LEVELS:-1}
 PIPELINE=${PIPELINE:-target/release/pipeline}
 "$PIPELINE" train --help >/dev/null 2>&1 || { echo "$0: $PIPELINE cannot train: build it with cargo build --release --features train" >&2; exit 2; }
 
@@ -46,10 +50,11 @@ case "$WHAT" in
   conventional) init=${INIT:-models/unet$WIDTH-conventional} ;;
   *) echo "train-burst.sh: $WHAT: expected shards, phase_coded or conventional" >&2; exit 2 ;;
 esac
-dir="$RUNS/burst-unet$WIDTH-$WHAT"
+name="burst-unet$WIDTH"; [ "$LEVELS" = 1 ] || name="$name-film$LEVELS"
+dir="$RUNS/$name-$WHAT"
 resume=(); [ -f "$dir/latest.json" ] && resume=(--resume)
 RAYON_NUM_THREADS=${THREADS:-1} exec nice -n 19 "$PIPELINE" train --config pipelines/train.toml "${resume[@]}" --progress never \
-  --set model.type='"burst_unet"' --set model.base="$WIDTH" --set "init=\"$init\"" \
+  --set model.type='"burst_unet"' --set model.base="$WIDTH" --set model.levels="$LEVELS" --set "init=\"$init\"" \
   --set "data.shards=[\"$DATA/shards/burst-$WHAT-n9/*.tar\"]" --set data.val_fraction=0.1 --set data.shuffle_buffer=1024 \
   --set optim.steps="$STEPS" --set optim.lr="$LR" --set optim.lr_min_factor=0.05 --set optim.warmup_steps="$WARMUP" \
   --set validate.every=500 --set validate.max_samples=256 \

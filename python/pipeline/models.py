@@ -38,13 +38,19 @@ class DoubleConv(nn.Module):
 
 
 class Up(nn.Module):
-    def __init__(self, cin, skip, cout):
+    """Upsample, concatenate the skip, double convolution; ``film`` (a burst U-Net's timed level
+    below the last) conditions the concatenation on the time."""
+
+    def __init__(self, cin, skip, cout, film=False):
         super().__init__()
         self.up = nn.ConvTranspose2d(cin, cin, 2, stride=2)
         self.conv = DoubleConv(cin + skip, cout)
+        if film:
+            self.film = Film(cin + skip)
 
-    def forward(self, x, s):
-        return self.conv(torch.cat([s, self.up(x)], 1))
+    def forward(self, x, s, t=None):
+        c = torch.cat([s, self.up(x)], 1)
+        return self.conv(self.film(c, t) if hasattr(self, "film") else c)
 
 
 def time_features(t):
@@ -73,13 +79,16 @@ class Film(nn.Module):
 
 class UNet(nn.Module):
     """The paper's U-Net: ``b`` filters at full resolution (64 in the paper), four poolings;
-    ``burst=True``: told the time on its last level (``Film``), the burst U-Net."""
+    ``burst=True``: told the time (``Film``) on its last ``levels`` decoder levels (1 to 4), the
+    burst U-Net. The last level's conditioning is ``film``, the others' ``ups.K.film``."""
 
-    def __init__(self, b, burst=False):
+    def __init__(self, b, burst=False, levels=1):
         super().__init__()
+        timed = [burst and k + levels >= 4 for k in range(4)]
         self.inc = DoubleConv(3, b)
         self.downs = nn.ModuleList([DoubleConv(i, o) for i, o in [(b, 2 * b), (2 * b, 4 * b), (4 * b, 8 * b), (8 * b, 8 * b)]])
-        self.ups = nn.ModuleList([Up(8 * b, 8 * b, 4 * b), Up(4 * b, 4 * b, 2 * b), Up(2 * b, 2 * b, b), Up(b, b, b)])
+        ups = [(8 * b, 8 * b, 4 * b), (4 * b, 4 * b, 2 * b), (2 * b, 2 * b, b)]
+        self.ups = nn.ModuleList([Up(*a, film=f) for a, f in zip(ups, timed)] + [Up(b, b, b)])
         self.outc = nn.Conv2d(b, 3, 1)
         if burst:
             self.film = Film(2 * b)
@@ -94,13 +103,13 @@ class UNet(nn.Module):
         for d in self.downs:
             xs.append(d(nn.functional.max_pool2d(xs[-1], 2)))
         y = xs.pop()
+        t = torch.as_tensor(t, dtype=x.dtype, device=x.device).expand(x.shape[0])
         for i, u in enumerate(self.ups):
             s = xs.pop()
             if i == len(self.ups) - 1 and hasattr(self, "film"):
-                t = torch.as_tensor(t, dtype=x.dtype, device=x.device).expand(x.shape[0])
                 y = u.conv(self.film(torch.cat([s, u.up(y)], 1), t))
             else:
-                y = u(y, s)
+                y = u(y, s, t)
         return (xp + self.outc(y))[..., :h, :w]
 
 
@@ -124,7 +133,7 @@ def build(arch):
     if arch.get("type") == "unet":
         return UNet(int(arch["base"]))
     if arch.get("type") == "burst_unet":
-        return UNet(int(arch["base"]), burst=True)
+        return UNet(int(arch["base"]), burst=True, levels=int(arch.get("levels", 1)))
     if arch.get("type") == "shallow":
         return Shallow(int(arch["width"]))
     raise ValueError(f"unknown architecture {arch!r}")
@@ -142,6 +151,8 @@ def load(path):
     elif "inc.a.0.weight" in tensors:
         kind = "burst_unet" if "film.weight" in tensors else "unet"
         arch = {"type": kind, "base": tensors["inc.a.0.weight"].shape[0]}
+        if kind == "burst_unet":
+            arch["levels"] = 1 + sum(f"ups.{k}.film.weight" in tensors for k in range(3))
     elif "blocks.0.0.weight" in tensors:
         arch = {"type": "shallow", "width": tensors["blocks.0.0.weight"].shape[0]}
     else:

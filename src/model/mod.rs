@@ -38,11 +38,40 @@ pub enum Arch {
     /// The shallow ablation model; `width` filters per block (32 in the paper).
     Shallow { width: usize },
     /// The U-Net told the time: the sharp image at any time t of the exposure (a fraction in
-    /// [0, 1]) from one capture (FiLM on its last level).
-    BurstUnet { base: usize },
+    /// [0, 1]) from one capture. The input of each of the last `levels` decoder levels (1 to 4)
+    /// is scaled and shifted per channel from t (FiLM); the rest runs once per capture.
+    BurstUnet {
+        base: usize,
+        #[serde(default = "last_level", skip_serializing_if = "is_last_level")]
+        levels: usize,
+    },
 }
 
+fn last_level() -> usize {
+    1
+}
+
+fn is_last_level(levels: &usize) -> bool {
+    *levels == 1
+}
+
+/// The decoder levels of the U-Net (the burst U-Net's `levels` is at most this).
+pub const DECODER_LEVELS: usize = 4;
+
 impl Arch {
+    /// The burst U-Net told the time on its last level only (the first burst models).
+    pub fn burst(base: usize) -> Arch {
+        Arch::BurstUnet { base, levels: 1 }
+    }
+
+    /// How many decoder levels, counted from the last, are told the time (0: not a burst model).
+    pub fn timed_levels(&self) -> usize {
+        match *self {
+            Arch::BurstUnet { levels, .. } => levels,
+            _ => 0,
+        }
+    }
+
     /// Whether the network takes the time (a burst model).
     pub fn is_burst(&self) -> bool {
         matches!(self, Arch::BurstUnet { .. })
@@ -51,7 +80,7 @@ impl Arch {
     /// The U-Net's or shallow model's width.
     pub fn width(&self) -> usize {
         match *self {
-            Arch::Unet { base } | Arch::BurstUnet { base } => base,
+            Arch::Unet { base } | Arch::BurstUnet { base, .. } => base,
             Arch::Shallow { width } => width,
         }
     }
@@ -59,7 +88,8 @@ impl Arch {
     pub fn name(&self) -> String {
         match self {
             Arch::Unet { base } => format!("unet-{base}"),
-            Arch::BurstUnet { base } => format!("burst-unet-{base}"),
+            Arch::BurstUnet { base, levels: 1 } => format!("burst-unet-{base}"),
+            Arch::BurstUnet { base, levels } => format!("burst-unet-{base}-film{levels}"),
             Arch::Shallow { width } => format!("shallow-{width}"),
         }
     }
@@ -72,7 +102,7 @@ impl Arch {
         let mut convs: Vec<(usize, usize, usize, usize)> = Vec::new();
         let px = |level: usize| (h >> level) * (w >> level);
         match *self {
-            Arch::Unet { base: b } | Arch::BurstUnet { base: b } => {
+            Arch::Unet { base: b } | Arch::BurstUnet { base: b, .. } => {
                 let double = |convs: &mut Vec<_>, cin: usize, cout: usize, level: usize| {
                     convs.push((cin, cout, 3, px(level)));
                     convs.push((cout, cout, 3, px(level)));
@@ -116,6 +146,16 @@ pub fn time_features(t: f32) -> [f32; TIME_FEATURES] {
         f[2 * j] = a.cos();
     }
     f
+}
+
+/// The burn name of the time conditioning of decoder level `i` (0 the coarsest): `Unet.film` for
+/// the last level (the first burst models had only it), `Unet.up{i + 1}.film` for the others.
+pub fn film_name(i: usize) -> String {
+    if i + 1 == DECODER_LEVELS {
+        "Unet.film".into()
+    } else {
+        format!("Unet.up{}.film", i + 1)
+    }
 }
 
 /// The time of a single-frame model's target: the middle of the exposure.

@@ -67,6 +67,9 @@ impl Down {
 pub struct Up {
     pub(in crate::model) up: ConvTranspose2d,
     pub(in crate::model) conv: DoubleConv,
+    /// A burst U-Net's time conditioning of this level's input, on the levels below the last
+    /// (the last level's is [`UNet::film`]).
+    pub(in crate::model) film: Option<Film>,
 }
 
 impl Up {
@@ -75,12 +78,10 @@ impl Up {
         Up {
             up: ConvTranspose2dConfig::new([cin, cin], [2, 2]).with_stride([2, 2]).init(device),
             conv: DoubleConv::new(cin + skip, cout, device),
+            film: None,
         }
     }
-    fn forward(&self, x: Tensor<4>, skip: Tensor<4>) -> Tensor<4> {
-        self.forward_film(x, skip, None)
-    }
-    /// With a time conditioning of the concatenation, as the burst U-Net's last level.
+    /// With a time conditioning of the concatenation (a burst U-Net's timed levels).
     fn forward_film(&self, x: Tensor<4>, skip: Tensor<4>, film: Option<(&Film, &[f32])>) -> Tensor<4> {
         let x = Tensor::cat(vec![skip, self.up.forward(x)], 1);
         let x = match film {
@@ -156,9 +157,29 @@ impl UNet {
         }
     }
 
-    /// The burst U-Net: the same, with its last level told the time.
-    pub fn new_burst(base: usize, device: &Device) -> UNet {
-        UNet { film: Some(Film::new(2 * base, device)), ..UNet::new(base, device) }
+    /// The burst U-Net: the same, with its last `levels` decoder levels told the time.
+    pub fn new_burst(base: usize, levels: usize, device: &Device) -> UNet {
+        UNet::new(base, device).with_films(levels, device)
+    }
+
+    /// The same U-Net with a time conditioning, at zero, added to each of its last `levels`
+    /// decoder levels that has none (the ones it has keep their weights).
+    fn with_films(mut self, levels: usize, device: &Device) -> UNet {
+        let channels = |u: &Up| u.conv.a.conv.weight.val().dims()[1];
+        for (k, u) in [&mut self.up1, &mut self.up2, &mut self.up3].into_iter().enumerate() {
+            if k + levels >= crate::model::DECODER_LEVELS && u.film.is_none() {
+                u.film = Some(Film::new(channels(u), device));
+            }
+        }
+        if levels >= 1 && self.film.is_none() {
+            self.film = Some(Film::new(channels(&self.up4), device));
+        }
+        self
+    }
+
+    /// How many decoder levels are told the time (0: a single-frame U-Net).
+    pub fn timed_levels(&self) -> usize {
+        [&self.up1, &self.up2, &self.up3].iter().filter(|u| u.film.is_some()).count() + usize::from(self.film.is_some())
     }
 
     /// Deblurred `[n, 3, h, w]` for any h, w (a burst U-Net: at the middle of the exposure).
@@ -177,10 +198,13 @@ impl UNet {
         let x3 = self.down2.forward(x2.clone());
         let x4 = self.down3.forward(x3.clone());
         let x5 = self.down4.forward(x4.clone());
-        let y = self.up1.forward(x5, x4);
-        let y = self.up2.forward(y, x3);
-        let y = self.up3.forward(y, x2);
-        let y = self.up4.forward_film(y, x1, self.film.as_ref().map(|f| (f, ts)));
+        fn at<'a>(f: &'a Option<Film>, ts: &'a [f32]) -> Option<(&'a Film, &'a [f32])> {
+            f.as_ref().map(|f| (f, ts))
+        }
+        let y = self.up1.forward_film(x5, x4, at(&self.up1.film, ts));
+        let y = self.up2.forward_film(y, x3, at(&self.up2.film, ts));
+        let y = self.up3.forward_film(y, x2, at(&self.up3.film, ts));
+        let y = self.up4.forward_film(y, x1, at(&self.film, ts));
         let r = self.outc.forward(y);
         let n = r.dims()[0];
         let r = if ph + pw > 0 { r.slice([0..n, 0..3, 0..h, 0..w]) } else { r };
@@ -250,7 +274,7 @@ impl Net {
     fn build(arch: Arch, device: &Device) -> Net {
         let net = match arch {
             Arch::Unet { base } => Net::Unet(UNet::new(base, device)),
-            Arch::BurstUnet { base } => Net::Unet(UNet::new_burst(base, device)),
+            Arch::BurstUnet { base, levels } => Net::Unet(UNet::new_burst(base, levels, device)),
             Arch::Shallow { width } => Net::Shallow(Shallow::new(width, device)),
         };
         net.visit(&mut Materialize);
@@ -285,18 +309,16 @@ impl Net {
         matches!(self, Net::Unet(UNet { film: Some(_), .. }))
     }
 
-    /// A burst U-Net made from a single-frame U-Net: its weights, and a time conditioning that
-    /// starts at zero (so at every time it gives what the U-Net gave).
+    /// A burst U-Net told the time on its last `levels` decoder levels, made from a U-Net
+    /// told it on fewer (or a single-frame one): its weights, and the new time conditioning at
+    /// zero (so at every time it gives what the U-Net gave).
     ///
     /// # Panics
-    /// If `self` is not a single-frame U-Net.
-    pub fn into_burst(self, device: &Device) -> Net {
+    /// If `self` is not a U-Net, or is told the time on more levels than `levels`.
+    pub fn into_burst(self, levels: usize, device: &Device) -> Net {
         match self {
-            Net::Unet(m) if m.film.is_none() => {
-                let c = m.outc.weight.val().dims()[1] * 2;
-                Net::Unet(UNet { film: Some(Film::new(c, device)), ..m })
-            }
-            _ => panic!("into_burst: not a single-frame U-Net"),
+            Net::Unet(m) if m.timed_levels() <= levels => Net::Unet(m.with_films(levels, device)),
+            _ => panic!("into_burst: not a U-Net told the time on at most {levels} levels"),
         }
     }
 

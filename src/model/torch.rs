@@ -186,7 +186,10 @@ pub fn from_torch(bytes: &[u8], name: &str) -> Result<Option<Vec<u8>>> {
     let arch: crate::model::Arch = match meta.get("arch").and_then(|a| a.as_str()).and_then(|a| serde_json::from_str(a).ok()) {
         Some(a) => a,
         None => match (shape_of("inc.a.0.weight"), shape_of("blocks.0.0.weight")) {
-            (Some(s), _) if shape_of("film.weight").is_some() => crate::model::Arch::BurstUnet { base: s[0] },
+            (Some(s), _) if shape_of("film.weight").is_some() => {
+                let deep = (0..3).filter(|k| shape_of(&format!("ups.{k}.film.weight")).is_some()).count();
+                crate::model::Arch::BurstUnet { base: s[0], levels: 1 + deep }
+            }
             (Some(s), _) => crate::model::Arch::Unet { base: s[0] },
             (None, Some(s)) => crate::model::Arch::Shallow { width: s[0] },
             _ => {
@@ -228,7 +231,7 @@ mod tests {
     fn the_parameter_list_is_burns() {
         use crate::model::Arch;
         use burn::store::{ModuleSnapshot, SafetensorsStore};
-        for arch in [Arch::Unet { base: 4 }, Arch::BurstUnet { base: 4 }, Arch::Shallow { width: 5 }] {
+        for arch in [Arch::Unet { base: 4 }, Arch::burst(4), Arch::BurstUnet { base: 4, levels: 4 }, Arch::Shallow { width: 5 }] {
             let mut store = SafetensorsStore::from_bytes(None);
             crate::model::Net::new(arch, &burn::tensor::Device::flex()).save_into(&mut store).unwrap();
             let (entries, _) = read_safetensors(&store.get_bytes().unwrap(), "burn").unwrap();
@@ -250,6 +253,8 @@ mod tests {
             ("Unet.up1.up.weight", "ups.0.up.weight"),
             ("Unet.up4.conv.a.conv.weight", "ups.3.conv.a.0.weight"),
             ("Unet.outc.bias", "outc.bias"),
+            ("Unet.film.beta", "film.bias"),
+            ("Unet.up2.film.gamma", "ups.1.film.weight"),
             ("Shallow.blocks.8.conv.weight", "blocks.8.0.weight"),
             ("Shallow.blocks.0.bn.running_mean", "blocks.0.1.running_mean"),
             ("Shallow.out.weight", "out.weight"),
@@ -263,7 +268,7 @@ mod tests {
         use crate::model::Arch;
         for (m, arch) in [
             (crate::model::infer::DEFAULT_MODEL, Arch::Unet { base: 32 }),
-            (crate::model::infer::DEFAULT_BURST_MODEL, Arch::BurstUnet { base: 32 }),
+            (crate::model::infer::DEFAULT_BURST_MODEL, Arch::burst(32)),
             (include_bytes!("../../models/shallow32-coded/model.safetensors").as_slice(), Arch::Shallow { width: 32 }),
         ] {
             let (src, _) = read_safetensors(m, "m").unwrap();

@@ -33,6 +33,8 @@ pub enum WeightsError {
     UnknownArch { arch: String, cause: serde_json::Error },
     #[error("the metadata names {arch}, outside 1 to {max} filters")]
     Width { arch: String, max: usize },
+    #[error("the metadata names a burst U-Net told the time on {levels} decoder levels, outside 1 to 4")]
+    Levels { levels: usize },
     #[error("the metadata names {arch} (at least {least} weights) but the file declares {declared}")]
     Declared { arch: String, least: usize, declared: u128 },
     #[error("{key} is missing: the weights do not fit {arch}")]
@@ -85,7 +87,9 @@ pub fn read_arch(bytes: &[u8]) -> Checked<Arch> {
 /// `arch`'s width within what `pipeline train` accepts and within the weights `header` declares.
 fn check_size(arch: Arch, header: &serde_json::Value) -> Checked<()> {
     let (b, max) = match arch {
-        Arch::Unet { base } | Arch::BurstUnet { base } => (base, 256),
+        Arch::Unet { base } => (base, 256),
+        Arch::BurstUnet { base, levels } if (1..=crate::model::DECODER_LEVELS).contains(&levels) => (base, 256),
+        Arch::BurstUnet { levels, .. } => return Err(WeightsError::Levels { levels }),
         Arch::Shallow { width } => (width, 1024),
     };
     if b == 0 || b > max {
@@ -111,7 +115,10 @@ fn check_size(arch: Arch, header: &serde_json::Value) -> Checked<()> {
 fn arch_from_torch_shapes(header: &serde_json::Value) -> Option<Arch> {
     let shape0 = |k: &str| header.get(k)?["shape"].as_array()?.first()?.as_u64().map(|d| d as usize);
     match (shape0("inc.a.0.weight"), shape0("blocks.0.0.weight")) {
-        (Some(b), _) if header.get("film.weight").is_some() => Some(Arch::BurstUnet { base: b }),
+        (Some(b), _) if header.get("film.weight").is_some() => {
+            let deep = (0..3).filter(|k| header.get(format!("ups.{k}.film.weight")).is_some()).count();
+            Some(Arch::BurstUnet { base: b, levels: 1 + deep })
+        }
         (Some(b), _) => Some(Arch::Unet { base: b }),
         (None, Some(w)) => Some(Arch::Shallow { width: w }),
         _ => None,
@@ -162,7 +169,7 @@ pub fn param_shapes(arch: Arch) -> Vec<(String, Vec<usize>)> {
         }
     };
     match arch {
-        Arch::Unet { base: b } | Arch::BurstUnet { base: b } => {
+        Arch::Unet { base: b } | Arch::BurstUnet { base: b, .. } => {
             let double = |out: &mut Vec<_>, conv_bn: &mut dyn FnMut(&mut Vec<_>, &str, usize, usize), p: &str, cin, cout| {
                 conv_bn(out, &format!("{p}.a"), cin, cout);
                 conv_bn(out, &format!("{p}.b"), cout, cout);
@@ -180,10 +187,13 @@ pub fn param_shapes(arch: Arch) -> Vec<(String, Vec<usize>)> {
             }
             out.push(("Unet.outc.weight".into(), vec![3, b, 1, 1]));
             out.push(("Unet.outc.bias".into(), vec![3]));
-            if arch.is_burst() {
-                // FiLM on the last level's concatenated input (2b channels).
-                out.push(("Unet.film.gamma".into(), vec![crate::model::TIME_FEATURES, 2 * b]));
-                out.push(("Unet.film.beta".into(), vec![crate::model::TIME_FEATURES, 2 * b]));
+            // FiLM on the timed levels' concatenated inputs, the last level's first.
+            for (i, c) in [16 * b, 8 * b, 4 * b, 2 * b].into_iter().enumerate().rev() {
+                if i + arch.timed_levels() >= crate::model::DECODER_LEVELS {
+                    let p = crate::model::film_name(i);
+                    out.push((format!("{p}.gamma"), vec![crate::model::TIME_FEATURES, c]));
+                    out.push((format!("{p}.beta"), vec![crate::model::TIME_FEATURES, c]));
+                }
             }
         }
         Arch::Shallow { width: c } => {
@@ -398,7 +408,7 @@ mod loading {
     fn every_shipped_kind_loads_with_its_architecture_and_torch_names_give_the_same_network() {
         let models = [
             (crate::model::infer::DEFAULT_MODEL, Arch::Unet { base: 32 }),
-            (crate::model::infer::DEFAULT_BURST_MODEL, Arch::BurstUnet { base: 32 }),
+            (crate::model::infer::DEFAULT_BURST_MODEL, Arch::burst(32)),
             (shallow(), Arch::Shallow { width: 32 }),
         ];
         for (bytes, arch) in models {

@@ -204,7 +204,11 @@ impl TrainConfig {
     pub fn validate(&self) -> Vec<crate::checks::ConfigError> {
         let mut c = crate::checks::Checker::new("");
         match self.model {
-            Arch::Unet { base } | Arch::BurstUnet { base } => c.range_usize("model.base", base, 1, 256),
+            Arch::Unet { base } => c.range_usize("model.base", base, 1, 256),
+            Arch::BurstUnet { base, levels } => {
+                c.range_usize("model.base", base, 1, 256);
+                c.range_usize("model.levels", levels, 1, crate::model::DECODER_LEVELS);
+            }
             Arch::Shallow { width } => c.range_usize("model.width", width, 1, 1024),
         }
         if self.data.shards.is_empty() {

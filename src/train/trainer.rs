@@ -95,17 +95,18 @@ impl Start {
 
     /// A trained model's weights (`init`), on a schedule of its own (steps 1 to optim.steps,
     /// peaking at optim.lr); the initial model's history is kept for the curves. A burst U-Net
-    /// starts from a single-frame U-Net of its width: the same weights, the time conditioning at
-    /// zero (at every time, what the U-Net gave).
+    /// starts from a U-Net of its width told the time on as many levels or fewer (a
+    /// single-frame one: none): the same weights, the missing time conditioning at zero (at every
+    /// time, what the U-Net gave).
     fn from_init(cfg: &TrainConfig, init: &str, device: &Device) -> Result<Start> {
         let path = Path::new(init);
         if std::fs::symlink_metadata(path).is_err() {
             return Err(Error::Usage(format!("init: {init}: no such model file or folder")));
         }
         let (mut net, mut arch) = load_model(path, device).map_err(|e| Error::Context { what: "init".into(), source: Box::new(e) })?;
-        if let (Arch::Unet { base }, Arch::BurstUnet { base: want }) = (arch, cfg.model) {
-            if base == want {
-                (net, arch) = (net.into_burst(device), cfg.model);
+        if let (Arch::Unet { base } | Arch::BurstUnet { base, .. }, Arch::BurstUnet { base: want, levels }) = (arch, cfg.model) {
+            if base == want && arch.timed_levels() <= levels {
+                (net, arch) = (net.into_burst(levels, device), cfg.model);
             }
         }
         if arch != cfg.model {

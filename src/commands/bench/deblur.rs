@@ -65,7 +65,7 @@ pub fn deblur(width: usize, height: usize, repeats: usize, burst: Option<usize>)
         let (net, arch) = match (burst, arch) {
             (None, a) => (net, a),
             (Some(_), crate::model::Arch::BurstUnet { .. }) => (net, arch),
-            (Some(_), crate::model::Arch::Unet { base }) => (net.into_burst(), crate::model::Arch::BurstUnet { base }),
+            (Some(_), crate::model::Arch::Unet { base }) => (net.into_burst(1), crate::model::Arch::burst(base)),
             (Some(_), _) => continue,
         };
         let time = |tiling: Tiling| {
@@ -78,7 +78,7 @@ pub fn deblur(width: usize, height: usize, repeats: usize, burst: Option<usize>)
         let torch_row: Option<serde_json::Value> = if let Some(script) = &script {
             let (kind, w) = match arch {
                 Arch::Unet { base } => ("unet", base),
-                Arch::BurstUnet { base } => ("burst_unet", base),
+                Arch::BurstUnet { base, .. } => ("burst_unet", base),
                 Arch::Shallow { width } => ("shallow", width),
             };
             torch_json(script, &["infer", kind, &w.to_string(), &height.to_string(), &width.to_string(), &repeats.to_string()])

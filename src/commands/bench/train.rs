@@ -181,7 +181,7 @@ pub fn train(archs: &[crate::model::Arch], batch: usize, repeats: usize, rounds:
         let torch_once = || -> Option<serde_json::Value> {
             let (kind, width) = match arch {
                 crate::model::Arch::Unet { base } => ("unet", base),
-                crate::model::Arch::BurstUnet { base } => ("burst_unet", base),
+                crate::model::Arch::BurstUnet { base, .. } => ("burst_unet", base),
                 crate::model::Arch::Shallow { width } => ("shallow", width),
             };
             torch_json(script.as_ref()?, &[kind, &width.to_string(), &batch.to_string(), &repeats.to_string()])

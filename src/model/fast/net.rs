@@ -12,6 +12,8 @@ pub(super) struct Up {
     pub(super) up: UpConv,
     pub(super) conv: Double,
     pub(super) skip: usize,
+    /// A burst U-Net's time conditioning of this level's concatenation.
+    pub(super) film: Option<Film>,
 }
 
 #[derive(Debug, Clone)]
@@ -20,14 +22,27 @@ pub(super) struct FUnet {
     pub(super) downs: Vec<Down>,
     pub(super) ups: Vec<Up>,
     pub(super) outc: Conv,
-    /// The burst U-Net's time conditioning of the last level's concatenation.
-    pub(super) film: Option<Film>,
+}
+
+/// What the U-Net's decoder still needs at its first level told the time: that level's
+/// index, its concatenation of skip and upsampled features, and the skips of the levels after it
+/// (finest first).
+struct Trunk {
+    level: usize,
+    cat: T4,
+    skips: Vec<T4>,
 }
 
 impl FUnet {
-    /// The input padded to a multiple of 16, through every level up to the last one's
-    /// concatenation of skip and upsampled features (what does not depend on the time).
-    fn trunk(&self, x: &T4) -> T4 {
+    /// The index of the first decoder level told the time (`ups.len() - 1` when none is: the
+    /// last level's double convolution and the output layer then make the head).
+    fn first_timed(&self) -> usize {
+        self.ups.iter().position(|u| u.film.is_some()).unwrap_or(self.ups.len() - 1)
+    }
+
+    /// The input padded to a multiple of 16, through every level up to the concatenation of
+    /// the first decoder level told the time (what does not depend on the time).
+    fn trunk(&self, x: &T4) -> Trunk {
         let (h, w) = (x.h.div_ceil(16) * 16, x.w.div_ceil(16) * 16);
         let xp = if (h, w) != (x.h, x.w) { pad_edge(x, h, w) } else { x.clone() };
         let mut xs = vec![self.inc.forward(&xp)];
@@ -37,24 +52,34 @@ impl FUnet {
             xs.push(d.conv.forward(&p));
         }
         let mut y = xs.pop().expect("bottom");
-        let (last, ups) = self.ups.split_last().expect("levels");
-        for u in ups {
+        let level = self.first_timed();
+        for u in &self.ups[..level] {
             let skip = xs.pop().expect("skip");
             let upy = u.up.forward(&y);
             y = u.conv.forward(&cat(&skip, &upy));
         }
         let skip = xs.pop().expect("skip");
-        cat(&skip, &last.up.forward(&y))
+        let cat = cat(&skip, &self.ups[level].up.forward(&y));
+        Trunk { level, cat, skips: xs }
     }
 
-    /// The rest, from the trunk's output `c`, at the times `ts` (one per sample), plus the input
-    /// `x` (cropped back to its size).
-    fn head(&self, c: T4, ts: &[f32], x: &T4) -> T4 {
-        let c = match &self.film {
-            Some(f) => f.forward(c, ts),
-            None => c,
-        };
-        let y = self.ups.last().expect("levels").conv.forward(&c);
+    /// The rest, from the trunk, at the times `ts` (one per sample), plus the input `x`
+    /// (cropped back to its size).
+    fn head(&self, trunk: &Trunk, ts: &[f32], x: &T4) -> T4 {
+        let mut skips = trunk.skips.iter().rev();
+        let mut c = trunk.cat.clone();
+        let mut y;
+        let mut level = trunk.level;
+        loop {
+            let u = &self.ups[level];
+            if let Some(f) = &u.film {
+                c = f.forward(c, ts);
+            }
+            y = u.conv.forward(&c);
+            level += 1;
+            let Some(next) = self.ups.get(level) else { break };
+            c = cat(skips.next().expect("skip"), &next.up.forward(&y));
+        }
         drop(c);
         let r = self.outc.forward(&y);
         let mut r = if (r.h, r.w) != (x.h, x.w) { crop(&r, x.h, x.w) } else { r };
@@ -124,13 +149,16 @@ impl FastNet {
                         let c = b.len();
                         let up = UpConv::from_parts(c, c, w, b);
                         let skip = conv.a.conv.cin - up.cout;
-                        Up { up, conv, skip }
+                        let film = (i + arch.timed_levels() >= crate::model::DECODER_LEVELS).then(|| {
+                            let p = crate::model::film_name(i);
+                            Film::from_parts(wt.take(&format!("{p}.gamma")), wt.take(&format!("{p}.beta")))
+                        });
+                        Up { up, conv, skip, film }
                     })
                     .collect();
                 let (w, b) = (wt.take("Unet.outc.weight"), wt.take("Unet.outc.bias"));
                 let outc = Conv::from_parts(3, w.len() / 3, 1, w, Some(b));
-                let film = arch.is_burst().then(|| Film::from_parts(wt.take("Unet.film.gamma"), wt.take("Unet.film.beta")));
-                Kind::Unet(FUnet { inc, downs, ups, outc, film })
+                Kind::Unet(FUnet { inc, downs, ups, outc })
             }
             crate::model::Arch::Shallow { .. } => {
                 let blocks = (0..9).map(|i| conv_bn(&format!("Shallow.blocks.{i}"), 0.0)).collect();
@@ -142,14 +170,17 @@ impl FastNet {
         FastNet { kind, crop: None }
     }
 
-    /// A single-frame U-Net as a burst U-Net whose time conditioning is zero (the same output
-    /// at every time); any other network unchanged.
-    pub fn into_burst(mut self) -> FastNet {
+    /// A U-Net as a burst U-Net told the time on (at least) its last `levels` decoder levels,
+    /// the conditioning it lacked at zero (the same output at every time); any other network
+    /// unchanged.
+    pub fn into_burst(mut self, levels: usize) -> FastNet {
         if let Kind::Unet(u) = &mut self.kind {
-            if u.film.is_none() {
-                let c = u.ups.last().expect("levels").conv.a.conv.cin;
-                let zeros = vec![0.0; crate::model::TIME_FEATURES * c];
-                u.film = Some(Film::from_parts(zeros.clone(), zeros));
+            let n = u.ups.len();
+            for up in u.ups.iter_mut().skip(n.saturating_sub(levels)) {
+                if up.film.is_none() {
+                    let zeros = vec![0.0; crate::model::TIME_FEATURES * up.conv.a.conv.cin];
+                    up.film = Some(Film::from_parts(zeros.clone(), zeros));
+                }
             }
         }
         self
@@ -165,17 +196,16 @@ impl FastNet {
                     .iter()
                     .map(|d| Down { conv: Double::from_burn(&d.conv), idx: Vec::new(), hw_in: (0, 0) })
                     .collect(),
-                ups: [&u.up1, &u.up2, &u.up3, &u.up4]
+                ups: [(&u.up1, &u.up1.film), (&u.up2, &u.up2.film), (&u.up3, &u.up3.film), (&u.up4, &u.film)]
                     .iter()
-                    .map(|up| {
+                    .map(|(up, film)| {
                         let upc = UpConv::from_burn(&up.up);
                         let conv = Double::from_burn(&up.conv);
                         let skip = conv.a.conv.cin - upc.cout;
-                        Up { up: upc, conv, skip }
+                        Up { up: upc, conv, skip, film: film.as_ref().map(Film::from_burn) }
                     })
                     .collect(),
                 outc: Conv::from_burn(&u.outc),
-                film: u.film.as_ref().map(Film::from_burn),
             }),
             Net::Shallow(s) => Kind::Shallow(FShallow {
                 blocks: s.blocks.iter().map(|b| ConvBnAct::from_burn(&b.conv, &b.bn, 0.0)).collect(),
@@ -194,16 +224,22 @@ impl FastNet {
                 for (d, b) in f.downs.iter().zip([&mut u.down1, &mut u.down2, &mut u.down3, &mut u.down4]) {
                     d.conv.write(&mut b.conv);
                 }
+                let films = [u.up1.film.take(), u.up2.film.take(), u.up3.film.take(), u.film.take()];
+                let mut films = f.ups.iter().zip(films).map(|(d, b)| match (&d.film, b) {
+                    (Some(a), Some(mut b)) => {
+                        a.write(&mut b);
+                        Some(b)
+                    }
+                    (None, None) => None,
+                    _ => panic!("write_into: U-Nets told the time on different levels"),
+                });
+                let mut next = || films.next().expect("four levels");
+                (u.up1.film, u.up2.film, u.up3.film, u.film) = (next(), next(), next(), next());
                 for (d, b) in f.ups.iter().zip([&mut u.up1, &mut u.up2, &mut u.up3, &mut u.up4]) {
                     d.up.write(&mut b.up);
                     d.conv.write(&mut b.conv);
                 }
                 f.outc.write(&mut u.outc);
-                match (&f.film, &mut u.film) {
-                    (Some(a), Some(b)) => a.write(b),
-                    (None, None) => {}
-                    _ => panic!("write_into: a burst and a single-frame U-Net"),
-                }
             }
             (Kind::Shallow(f), Net::Shallow(s)) => {
                 for (a, b) in f.blocks.iter().zip(s.blocks.iter_mut()) {
@@ -224,7 +260,7 @@ impl FastNet {
 
     /// Whether the network takes the time (a burst U-Net).
     pub fn is_burst(&self) -> bool {
-        matches!(&self.kind, Kind::Unet(FUnet { film: Some(_), .. }))
+        matches!(&self.kind, Kind::Unet(u) if u.ups.iter().any(|u| u.film.is_some()))
     }
 
     /// [`FastNet::forward`] with sample i at time `ts[i]` (empty: every sample at the middle;
@@ -242,20 +278,19 @@ impl FastNet {
             }
             Kind::Unet(m) => {
                 let ts = times_or_middle(ts, x.n);
-                let c = m.trunk(x);
-                m.head(c, &ts, x)
+                m.head(&m.trunk(x), &ts, x)
             }
         }
     }
 
     /// A burst U-Net's output at each of the times `ts`, every sample at every time: the part
-    /// that does not depend on the time (all but the last level's double convolution and the
-    /// output layer) runs once. A single-frame network gives its one output for every time.
+    /// that does not depend on the time (the encoder and the decoder levels before the first
+    /// one told the time) runs once. A single-frame network gives its one output for every time.
     pub fn forward_burst(&self, x: &T4, ts: &[f32]) -> Vec<T4> {
         match &self.kind {
-            Kind::Unet(m) if m.film.is_some() => {
-                let c = m.trunk(x);
-                ts.iter().map(|&t| m.head(c.clone(), &vec![t; x.n], x)).collect()
+            Kind::Unet(m) if self.is_burst() => {
+                let trunk = m.trunk(x);
+                ts.iter().map(|&t| m.head(&trunk, &vec![t; x.n], x)).collect()
             }
             _ => {
                 let y = self.forward(x);
@@ -296,14 +331,13 @@ impl FastNet {
                 }
                 let mut y = xs.pop().expect("bottom");
                 let ts = times_or_middle(ts, x.n);
-                let levels = m.ups.len();
-                for (l, u) in m.ups.iter_mut().enumerate() {
+                for u in m.ups.iter_mut() {
                     let skip = xs.pop().expect("skip");
                     let upy = u.up.forward_train(y);
                     let c = cat(&skip, &upy);
-                    let c = match (&mut m.film, l + 1 == levels) {
-                        (Some(f), true) => f.forward_train(c, &ts),
-                        _ => c,
+                    let c = match &mut u.film {
+                        Some(f) => f.forward_train(c, &ts),
+                        None => c,
                     };
                     y = u.conv.forward_train(Arc::new(c));
                 }
@@ -335,12 +369,11 @@ impl FastNet {
                 };
                 let mut d = m.outc.backward(&d, true).expect("dx");
                 let mut skips = Vec::new();
-                let levels = m.ups.len();
-                for (l, u) in m.ups.iter_mut().enumerate().rev() {
+                for u in m.ups.iter_mut().rev() {
                     let dcat = u.conv.backward(d, true).expect("dx");
-                    let dcat = match (&mut m.film, l + 1 == levels) {
-                        (Some(f), true) => f.backward(&dcat),
-                        _ => dcat,
+                    let dcat = match &mut u.film {
+                        Some(f) => f.backward(&dcat),
+                        None => dcat,
                     };
                     let (dskip, dup) = split(&dcat, u.skip);
                     d = u.up.backward(&dup);
@@ -368,12 +401,20 @@ impl FastNet {
             Kind::Unet(m) => {
                 m.inc.params(f);
                 m.downs.iter_mut().for_each(|d| d.conv.params(f));
-                for u in &mut m.ups {
+                // burn's order: each level's time conditioning after its convolutions, the
+                // last level's after the output layer (where the first burst models had it).
+                let (last, ups) = m.ups.split_last_mut().expect("levels");
+                for u in ups {
                     u.up.params(f);
                     u.conv.params(f);
+                    if let Some(film) = u.film.as_mut() {
+                        film.params(f);
+                    }
                 }
+                last.up.params(f);
+                last.conv.params(f);
                 m.outc.params(f);
-                if let Some(film) = m.film.as_mut() {
+                if let Some(film) = last.film.as_mut() {
                     film.params(f);
                 }
             }

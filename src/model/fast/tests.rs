@@ -175,50 +175,70 @@ fn gradients_match_burn_where_winograd_takes_the_forward_and_input_gradient() {
     network_gradients_match(crate::model::Arch::Unet { base: 16 }, 2, 32, 32);
 }
 
+/// Every time conditioning of a burst U-Net set off zero (its start), so that the output
+/// depends on the time at every timed level.
+fn films_off_zero(net: &mut Net, dev: &Device, seed: u64) {
+    let Net::Unet(u) = net else { unreachable!() };
+    let films = [u.up1.film.as_mut(), u.up2.film.as_mut(), u.up3.film.as_mut(), u.film.as_mut()];
+    for (k, film) in films.into_iter().enumerate() {
+        let Some(film) = film else { continue };
+        let shape = film.gamma.val().dims();
+        let r = |s: u64| {
+            let v = rand(1, 1, shape[0], shape[1], s).d.iter().map(|v| v * 0.3).collect::<Vec<f32>>();
+            burn::module::Param::from_tensor(Tensor::<2>::from_data(TensorData::new(v, shape), dev))
+        };
+        (film.gamma, film.beta) = (r(seed + 2 * k as u64), r(seed + 2 * k as u64 + 1));
+    }
+}
+
 #[test]
 fn burst_unet_gradients_match_burn_at_other_times_for_each_sample() {
     let dev = ad();
-    let mut net = Net::seeded(crate::model::Arch::BurstUnet { base: 4 }, &dev, 11);
-    // A time conditioning off zero (its start), so that the output depends on the time.
-    let Net::Unet(u) = &mut net else { unreachable!() };
-    let film = u.film.as_mut().expect("a burst U-Net");
-    let shape = [crate::model::TIME_FEATURES, 8];
-    let r = |seed: u64| {
-        let v = rand(1, 1, shape[0], shape[1], seed).d.iter().map(|v| v * 0.3).collect::<Vec<f32>>();
-        burn::module::Param::from_tensor(Tensor::<2>::from_data(TensorData::new(v, shape), &dev))
-    };
-    (film.gamma, film.beta) = (r(7), r(8));
-    let f = FastNet::from_net(&net);
-    let x = rand(2, 3, 20, 24, 1);
-    let (a, b) = (f.forward_at(&x, &[0.1, 0.9]), f.forward_at(&x, &[0.9, 0.1]));
-    assert!(rel(&a.d, &b.d) > 1e-3, "the time changes nothing");
-    network_gradients_match_at(net, &[0.05, 0.95], 2, 20, 24);
+    for levels in [1, 4] {
+        let mut net = Net::seeded(crate::model::Arch::BurstUnet { base: 4, levels }, &dev, 11);
+        films_off_zero(&mut net, &dev, 7);
+        let f = FastNet::from_net(&net);
+        let x = rand(2, 3, 20, 24, 1);
+        let (a, b) = (f.forward_at(&x, &[0.1, 0.9]), f.forward_at(&x, &[0.9, 0.1]));
+        assert!(rel(&a.d, &b.d) > 1e-3, "the time changes nothing ({levels} levels)");
+        network_gradients_match_at(net, &[0.05, 0.95], 2, 20, 24);
+    }
 }
 
 #[test]
 fn a_burst_units_trunk_runs_once_and_gives_what_each_time_alone_gives() {
     let dev = Device::flex();
-    let net = Net::seeded(crate::model::Arch::BurstUnet { base: 4 }, &dev, 3);
-    let mut f = FastNet::from_net(&net);
-    f.params(&mut |p, _| {
-        if p.len() == crate::model::TIME_FEATURES * 8 {
-            p.iter_mut().enumerate().for_each(|(i, v)| *v = (crate::rng::unit(crate::rng::hash(&[9, i as u64])) as f32 - 0.5) * 0.6);
-        }
-    });
     let x = rand(1, 3, 21, 30, 2);
     let ts = [0.0625, 0.5, 0.9375];
-    let burst = f.forward_burst(&x, &ts);
-    for (t, y) in ts.iter().zip(&burst) {
-        assert_eq!(y.d, f.forward_at(&x, &[*t]).d, "t = {t}");
+    for levels in [1, 2, 4] {
+        let arch = crate::model::Arch::BurstUnet { base: 4, levels };
+        let mut net = Net::seeded(arch, &dev, 3);
+        films_off_zero(&mut net, &dev, 9);
+        let f = FastNet::from_net(&net);
+        let burst = f.forward_burst(&x, &ts);
+        for (t, y) in ts.iter().zip(&burst) {
+            assert_eq!(y.d, f.forward_at(&x, &[*t]).d, "t = {t}, {levels} levels");
+        }
+        assert!(rel(&burst[0].d, &burst[2].d) > 1e-3, "the time changes nothing ({levels} levels)");
+        let theirs = vecf(f.write_into(Net::seeded(arch, &dev, 4)).forward_at(x.to_tensor(&dev), &[0.0625]));
+        assert!(rel(&burst[0].d, &theirs) < 1e-4, "{levels} levels");
     }
-    let theirs =
-        vecf(f.write_into(Net::seeded(crate::model::Arch::BurstUnet { base: 4 }, &dev, 4)).forward_at(x.to_tensor(&dev), &[0.0625]));
-    assert!(rel(&burst[0].d, &theirs) < 1e-4);
-    // At the middle, a burst U-Net made from a U-Net is that U-Net.
+    // At the middle, a burst U-Net made from a U-Net is that U-Net; and one told the time on
+    // more levels, made from a burst U-Net, is that burst U-Net at every time.
     let unet = Net::seeded(crate::model::Arch::Unet { base: 4 }, &dev, 5);
     let want = FastNet::from_net(&unet).forward(&x);
-    let got = FastNet::from_net(&unet.into_burst(&dev)).forward_burst(&x, &ts);
+    let burst1 = unet.into_burst(1, &dev);
+    let got = FastNet::from_net(&burst1).forward_burst(&x, &ts);
     assert!(got.iter().all(|y| y.d == want.d));
+    let mut burst1 = burst1;
+    films_off_zero(&mut burst1, &dev, 13);
+    let want = FastNet::from_net(&burst1).forward_burst(&x, &ts);
+    // The same in the fast path.
+    let fast4 = FastNet::from_net(&burst1).into_burst(4);
+    let burst4 = burst1.into_burst(4, &dev);
+    for got in [FastNet::from_net(&burst4).forward_burst(&x, &ts), fast4.forward_burst(&x, &ts)] {
+        assert!(got.iter().zip(&want).all(|(a, b)| a.d == b.d));
+    }
 }
 
 #[test]
