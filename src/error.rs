@@ -27,9 +27,14 @@ pub enum Error {
     /// What was being done (`init`, say) when its cause failed; the cause is kept.
     #[error("{what}")]
     Context { what: String, source: Box<Error> },
-    /// A pipeline file that does not parse or has an unknown key.
-    #[error("{0}")]
-    ConfigText(String),
+    /// A settings file that is not TOML, or whose TOML does not fit (an unknown key, a value
+    /// of the wrong type): where (`origin`), the located message (the line quoted, when the text
+    /// is at hand), and the `toml` crate's error. Exit code 2.
+    #[error("{origin}: {located}")]
+    Toml { origin: String, located: String, cause: Box<toml::de::Error> },
+    /// A `--set` that cannot be applied. Exit code 2.
+    #[error(transparent)]
+    Set(#[from] SetError),
     /// Some inputs failed (each already named on stderr); the rest were done: exit code 1.
     #[error("{n} input(s) failed; {} lists them", report.display())]
     InputsFailed { n: usize, report: PathBuf },
@@ -88,7 +93,75 @@ pub enum FormatError {
     Json(#[from] serde_json::Error),
 }
 
+/// Why a `--set key.path=value` cannot be applied.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum SetError {
+    #[error("--set {set:?}: expected key.path=value")]
+    NoEquals { set: String },
+    /// Starts like a number, array, table or quoted string but is not one.
+    #[error("--set {key}: {value:?} is not a TOML value: {}{}", first_line(cause.message()), int_hint(value))]
+    NotValue { key: String, value: String, cause: Box<toml::de::Error> },
+    #[error("--set {set:?}: {key:?} is not a key (keys are letters, digits, _ and -, joined by dots)")]
+    NotKey { set: String, key: String },
+    /// A dotted path through a value that is not a table.
+    #[error("--set {key}: {part} is not a table")]
+    NotTable { key: String, part: String },
+}
+
+fn first_line(s: &str) -> &str {
+    s.lines().next().unwrap_or("")
+}
+
+/// A hint for a value of digits only that is not a TOML integer (too large).
+fn int_hint(value: &str) -> &'static str {
+    if value.trim_start_matches(['+', '-']).chars().all(|c| c.is_ascii_digit()) {
+        " (integers are at most 9223372036854775807)"
+    } else {
+        ""
+    }
+}
+
+/// A TOML syntax error as the `toml` crate words it, with the line it quotes cut to 80
+/// characters around the error: a file of one 600 KB line (deeply nested arrays, say) is
+/// reported in a few lines, not echoed whole.
+pub fn toml_error(e: &toml::de::Error, text: &str) -> String {
+    const HALF: usize = 40;
+    let Some(span) = e.span().filter(|s| s.start <= text.len() && text.is_char_boundary(s.start)) else {
+        return e.to_string().trim().to_string();
+    };
+    let before = &text[..span.start];
+    let line_no = before.matches('\n').count() + 1;
+    let start = before.rfind('\n').map_or(0, |i| i + 1);
+    let end = text[start..].find('\n').map_or(text.len(), |i| start + i);
+    let line: Vec<char> = text[start..end].trim_end_matches('\r').chars().collect();
+    let col = text[start..span.start].chars().count();
+    let (from, to) = (col.saturating_sub(HALF), (col + HALF).min(line.len()));
+    let pre = if from > 0 { "..." } else { "" };
+    let post = if to < line.len() { "..." } else { "" };
+    let snippet: String = line[from.min(to)..to].iter().collect();
+    let gutter = " ".repeat(line_no.to_string().len());
+    format!(
+        "TOML parse error at line {line_no}, column {}\n{gutter} |\n{line_no} | {pre}{snippet}{post}\n{gutter} | {}^\n{}",
+        col + 1,
+        " ".repeat(pre.len() + col - from.min(col)),
+        e.message().trim()
+    )
+}
+
 impl Error {
+    /// A TOML error of the settings named `origin`: `.map_err(Error::toml(origin, Some(text)))`;
+    /// with the text, the message quotes the line (see [`toml_error`]).
+    pub fn toml<'a>(origin: &'a str, text: Option<&'a str>) -> impl FnOnce(toml::de::Error) -> Error + 'a {
+        move |e| {
+            let located = match text {
+                Some(t) => toml_error(&e, t),
+                None => e.to_string().trim().to_string(),
+            };
+            Error::Toml { origin: origin.into(), located, cause: Box::new(e) }
+        }
+    }
+
     /// The message with its causes, one line (`stage shards: manifest.json: No space left`), for
     /// reports that keep text.
     pub fn chain(&self) -> String {

@@ -362,7 +362,35 @@ pub enum Item {
     Frame(Arc<Input>, u64, Arc<Frame>),
     Sample(Box<Sample>),
     /// The input is done: Ok, or the reason it failed (its outputs are discarded).
-    End(Arc<Input>, Result<(), String>),
+    End(Arc<Input>, Result<(), Arc<InputError>>),
+}
+
+/// Why one input failed (its outputs are discarded; the run goes on with the others). Each
+/// names the input.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum InputError {
+    /// The file could not be read or decoded: its error (which names it), causes included in
+    /// the message.
+    #[error("{}", .0.chain())]
+    Read(crate::Error),
+    #[error("{path}: frames are {width}x{height}, smaller than a {}x{} patch", patch.0, patch.1)]
+    TooSmall { path: String, width: usize, height: usize, patch: (usize, usize) },
+    /// Fewer frames announced than one window.
+    #[error("{path}: {frames} frames, shorter than one window of {window}")]
+    TooShort { path: String, frames: u64, window: usize },
+    /// Decoded to its end without filling one window.
+    #[error("{path}: shorter than one window of {window} frames")]
+    NoWindow { path: String, window: usize },
+    #[error("{path}: truncated: decoded {decoded} of the {announced} frames the container announces")]
+    Truncated { path: String, decoded: u64, announced: u64 },
+}
+
+impl InputError {
+    /// As an [`Item::End`] carries it.
+    pub fn end(self) -> Result<(), Arc<InputError>> {
+        Err(Arc::new(self))
+    }
 }
 
 #[cfg(test)]

@@ -8,7 +8,7 @@ fn main() {
     let cli = pipeline::cli::Cli::parse();
     if let Err(e) = pipeline::cli::run(cli) {
         let code = match e.downcast_ref::<pipeline::Error>() {
-            Some(pipeline::Error::Config(_) | pipeline::Error::ConfigText(_) | pipeline::Error::Usage(_)) => 2,
+            Some(pipeline::Error::Config(_) | pipeline::Error::Toml { .. } | pipeline::Error::Set(_) | pipeline::Error::Usage(_)) => 2,
             Some(pipeline::Error::Interrupted(_)) => 130,
             _ => 1,
         };

@@ -165,13 +165,15 @@ impl Stream {
             match next {
                 Ok(Next::Sample(s)) => self.pending.extend(s.pairs.iter().map(|p| ready(&s, p))),
                 Ok(Next::Failed(path, why)) => {
-                    self.failed.push((path.clone(), why.clone()));
+                    // The error names the input itself.
+                    let why = why.to_string();
+                    self.failed.push((path, why.clone()));
                     if self.raise_on_failure {
                         self.inner = None;
-                        return Err(PyRuntimeError::new_err(format!("{path}: {why}")));
+                        return Err(PyRuntimeError::new_err(why));
                     }
                     let warnings = py.import("warnings")?;
-                    warnings.call_method1("warn", (format!("pipeline: input failed, skipped: {path}: {why}"),))?;
+                    warnings.call_method1("warn", (format!("pipeline: input failed, skipped: {why}"),))?;
                 }
                 Ok(Next::Waiting) => py.check_signals()?,
                 Ok(Next::End) => {

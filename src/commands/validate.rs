@@ -41,9 +41,7 @@ pub fn describe(table: toml::Table, origin: &crate::config::Origin) -> crate::Re
         }
     }
     if !table.contains_key("sources") && (table.contains_key("optics") || table.contains_key("camera")) {
-        let f: OpticsFile = toml::Value::Table(table)
-            .try_into()
-            .map_err(|e: toml::de::Error| crate::Error::ConfigText(format!("{origin_name}: {}", e.to_string().trim())))?;
+        let f: OpticsFile = toml::Value::Table(table).try_into().map_err(crate::Error::toml(origin_name, None))?;
         let mut errs = f.optics.validate("optics");
         if let Some(c) = &f.camera {
             errs.extend(c.validate("camera"));

@@ -23,11 +23,12 @@ mod reads;
 mod sets;
 
 pub use crate::checks::Origin;
+pub use crate::error::toml_error;
 use crate::stage::StageKind;
 pub use compiler::{plan, plan_from};
 pub use deserialize::deserialize_all;
 use serde::{Deserialize, Serialize};
-pub use sets::{apply_sets, generate_table, load, load_or_embedded, parse, toml_error, GENERATE_TOML};
+pub use sets::{apply_sets, generate_table, load, load_or_embedded, parse, GENERATE_TOML};
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 

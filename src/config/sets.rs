@@ -2,16 +2,18 @@
 //! embedded generate pipeline.
 
 use super::Origin;
+use crate::error::SetError;
 use std::path::Path;
 
 /// Applies `key.path=value` overrides to a TOML table. The value is read as TOML (`3`,
 /// `[0, 9]`, `"x"`, `true`) and as a bare string when that fails.
 ///
 /// # Errors
-/// A `--set` without `=`, or a path through a value that is not a table.
-pub fn apply_sets(table: &mut toml::Table, sets: &[String]) -> Result<(), String> {
+/// A `--set` without `=`, a value that starts like a number, array, table or quoted string but
+/// is not one, a key that is not a bare TOML key, or a path through a value that is not a table.
+pub fn apply_sets(table: &mut toml::Table, sets: &[String]) -> Result<(), SetError> {
     for s in sets {
-        let (path, value) = s.split_once('=').ok_or_else(|| format!("--set {s:?}: expected key.path=value"))?;
+        let (path, value) = s.split_once('=').ok_or_else(|| SetError::NoEquals { set: s.clone() })?;
         let value = value.trim();
         let parsed = toml::from_str::<toml::Table>(&format!("v = {value}")).map(|mut t| t.remove("v").expect("v"));
         // A bare word is a string (`camera.type=conventional`); what starts like a number, an
@@ -20,13 +22,7 @@ pub fn apply_sets(table: &mut toml::Table, sets: &[String]) -> Result<(), String
         let parsed = match parsed {
             Ok(v) => v,
             Err(e) if literal => {
-                let why = e.message().lines().next().unwrap_or("").to_string();
-                let hint = if value.trim_start_matches(['+', '-']).chars().all(|c| c.is_ascii_digit()) {
-                    " (integers are at most 9223372036854775807)".to_string()
-                } else {
-                    String::new()
-                };
-                return Err(format!("--set {}: {value:?} is not a TOML value: {why}{hint}", path.trim()));
+                return Err(SetError::NotValue { key: path.trim().into(), value: value.into(), cause: Box::new(e) });
             }
             Err(_) => toml::Value::String(value.to_string()),
         };
@@ -34,7 +30,7 @@ pub fn apply_sets(table: &mut toml::Table, sets: &[String]) -> Result<(), String
         // Bare TOML keys only: `trans forms.x` would otherwise become a new top-level key, which
         // the unknown-key check would then blame on the settings file.
         if let Some(k) = keys.iter().find(|k| k.is_empty() || !k.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-')) {
-            return Err(format!("--set {s:?}: {k:?} is not a key (keys are letters, digits, _ and -, joined by dots)"));
+            return Err(SetError::NotKey { set: s.clone(), key: k.to_string() });
         }
         let mut cur = &mut *table;
         for (i, k) in keys.iter().enumerate() {
@@ -42,7 +38,7 @@ pub fn apply_sets(table: &mut toml::Table, sets: &[String]) -> Result<(), String
                 cur.insert(k.to_string(), parsed.clone());
             } else {
                 let next = cur.entry(k.to_string()).or_insert_with(|| toml::Value::Table(toml::Table::new()));
-                cur = next.as_table_mut().ok_or_else(|| format!("--set {path}: {k} is not a table"))?;
+                cur = next.as_table_mut().ok_or_else(|| SetError::NotTable { key: path.into(), part: k.to_string() })?;
             }
         }
     }
@@ -67,41 +63,13 @@ pub fn load(path: &Path, sets: &[String]) -> Result<toml::Table, crate::Error> {
     parse(&text, &path.display().to_string(), sets)
 }
 
-/// A TOML syntax error as the `toml` crate words it, with the line it quotes cut to 80
-/// characters around the error: a file of one 600 KB line (deeply nested arrays, say) is
-/// reported in a few lines, not echoed whole.
-pub fn toml_error(e: &toml::de::Error, text: &str) -> String {
-    const HALF: usize = 40;
-    let Some(span) = e.span().filter(|s| s.start <= text.len() && text.is_char_boundary(s.start)) else {
-        return e.to_string().trim().to_string();
-    };
-    let before = &text[..span.start];
-    let line_no = before.matches('\n').count() + 1;
-    let start = before.rfind('\n').map_or(0, |i| i + 1);
-    let end = text[start..].find('\n').map_or(text.len(), |i| start + i);
-    let line: Vec<char> = text[start..end].trim_end_matches('\r').chars().collect();
-    let col = text[start..span.start].chars().count();
-    let (from, to) = (col.saturating_sub(HALF), (col + HALF).min(line.len()));
-    let pre = if from > 0 { "..." } else { "" };
-    let post = if to < line.len() { "..." } else { "" };
-    let snippet: String = line[from.min(to)..to].iter().collect();
-    let gutter = " ".repeat(line_no.to_string().len());
-    format!(
-        "TOML parse error at line {line_no}, column {}\n{gutter} |\n{line_no} | {pre}{snippet}{post}\n{gutter} | {}^\n{}",
-        col + 1,
-        " ".repeat(pre.len() + col - from.min(col)),
-        e.message().trim()
-    )
-}
-
 /// As [`load`], from text.
 ///
 /// # Errors
 /// See [`load`].
 pub fn parse(text: &str, origin: &str, sets: &[String]) -> Result<toml::Table, crate::Error> {
-    let mut table: toml::Table =
-        toml::from_str(text).map_err(|e| crate::Error::ConfigText(format!("{origin}: {}", toml_error(&e, text))))?;
-    apply_sets(&mut table, sets).map_err(crate::Error::ConfigText)?;
+    let mut table: toml::Table = toml::from_str(text).map_err(crate::Error::toml(origin, Some(text)))?;
+    apply_sets(&mut table, sets)?;
     Ok(table)
 }
 
@@ -142,14 +110,14 @@ pub fn generate_table(
         let sources = table
             .get_mut("sources")
             .and_then(|s| s.as_table_mut())
-            .ok_or_else(|| crate::Error::ConfigText(format!("{origin}: the pipeline has no [sources]")))?;
+            .ok_or_else(|| crate::checks::ConfigError { key: "sources".into(), message: format!("{origin} has none") })?;
         for (_, src) in sources.iter_mut() {
             if let Some(t) = src.as_table_mut() {
                 t.insert("paths".into(), toml::Value::Array(paths.iter().map(|v| toml::Value::String(v.clone())).collect()));
             }
         }
     }
-    apply_sets(&mut table, sets).map_err(crate::Error::ConfigText)?;
+    apply_sets(&mut table, sets)?;
     let text = config.is_none().then_some(GENERATE_TOML);
     Ok((table, Origin::new(&origin, text, sets)))
 }

@@ -26,8 +26,9 @@ pub struct SampleStream {
 /// What [`SampleStream::next`] found.
 pub enum Next {
     Sample(Box<crate::frame::Sample>),
-    /// An input failed (path, reason); its samples already given are not taken back.
-    Failed(String, String),
+    /// An input failed (its path, and why: an error that names it); its samples already given
+    /// are not taken back.
+    Failed(String, std::sync::Arc<crate::frame::InputError>),
     /// Nothing within the timeout; ask again.
     Waiting,
     /// Every input is done.

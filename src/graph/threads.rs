@@ -179,9 +179,9 @@ fn transform_loop(
         }
         match tr.process(item, out) {
             Ok(()) => {}
-            Err(StageError::Input(input, msg)) => {
+            Err(StageError::Input(input, e)) => {
                 failed.push(input.index);
-                out.send(Item::End(input, Err(msg)));
+                out.send(Item::End(input, e.end()));
             }
             Err(StageError::Fatal(e)) => {
                 record(first, stop, name, e);

@@ -148,7 +148,7 @@ pub fn resolve(a: &PsfSpec) -> crate::Result<(OpticsConfig, CameraConfig, PsfReq
     let file = match &a.config {
         Some(p) => {
             let text = std::fs::read_to_string(p).map_err(|e| Error::Io { path: p.clone(), cause: e })?;
-            toml::from_str::<OpticsFile>(&text).map_err(|e| Error::ConfigText(format!("{}: {}", p.display(), e.to_string().trim())))?
+            toml::from_str::<OpticsFile>(&text).map_err(Error::toml(&p.display().to_string(), Some(&text)))?
         }
         None => OpticsFile::default(),
     };

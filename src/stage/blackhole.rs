@@ -48,7 +48,7 @@ impl Sink for Blackhole {
                 Counters::add(&self.counters.inputs_done, 1);
             }
             Item::End(input, Err(e)) => {
-                self.failed.push((input.path.clone(), e));
+                self.failed.push((input.path.clone(), e.to_string()));
                 Counters::add(&self.counters.inputs_failed, 1);
             }
             _ => {}

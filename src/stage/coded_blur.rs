@@ -8,7 +8,7 @@ use super::patches::Selector;
 use super::{BuildContext, Built, Counters, Emit, Needs, StageConfig, StageError, StageResult, Transform};
 use crate::checks::Checker;
 use crate::checks::ConfigError;
-use crate::frame::{Frame, Img, Input, Item, Pair, Sample};
+use crate::frame::{Frame, Img, Input, InputError, Item, Pair, Sample};
 use crate::imaging::blur::Blurrer;
 use crate::optics::transfer::Curve;
 use crate::optics::{Camera, CameraConfig, OpticsConfig};
@@ -230,7 +230,7 @@ impl CameraBlur {
             Some(sel) => {
                 let pos = sel
                     .positions(self.seed, input.id, self.windows_done, w, h)
-                    .map_err(|e| StageError::Input(input.clone(), format!("{}: {e}", input.path)))?;
+                    .map_err(|e| StageError::Input(input.clone(), e.named(&input.path)))?;
                 let lqs = self.blurrer.blur_patches(&frames, &pos, sel.size);
                 pos.into_iter()
                     .zip(lqs)
@@ -334,9 +334,7 @@ impl Transform for CameraBlur {
             Item::End(input, res) => {
                 self.buf.clear();
                 let res = match res {
-                    Ok(()) if self.windows_done == 0 => {
-                        Err(format!("{}: shorter than one window of {} frames", input.path, self.blurrer.n))
-                    }
+                    Ok(()) if self.windows_done == 0 => InputError::NoWindow { path: input.path.clone(), window: self.blurrer.n }.end(),
                     other => other,
                 };
                 out.send(Item::End(input, res));

@@ -18,7 +18,7 @@ pub fn slow_footage(path: &std::path::Path, fps: f64) -> String {
 use super::input::{check_size, VIDEO_EXTS};
 use super::{BuildContext, Built, Counters, Emit, InputList, Needs, Source, StageConfig};
 use crate::checks::ConfigError;
-use crate::frame::{Input, Item};
+use crate::frame::{Input, InputError, Item};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::sync::atomic::Ordering;
@@ -68,17 +68,18 @@ impl Source for Decode {
     fn run(&mut self, out: &mut Emit) -> crate::Result<()> {
         use crate::io::video::VideoReader;
         for (input, path) in &self.inputs {
-            let fail = |msg: String| Item::End(input.clone(), Err(format!("{}: {msg}", path.display())));
+            let fail = |e: InputError| Item::End(input.clone(), e.end());
+            let read = |e| InputError::Read(crate::Error::video(path)(e));
             let mut reader = match VideoReader::open(path) {
                 Ok(r) => r,
                 Err(e) => {
-                    if !out.send(fail(e.chain())) {
+                    if !out.send(fail(read(e))) {
                         return Ok(());
                     }
                     continue;
                 }
             };
-            if let Err(e) = check_size(&reader.info, &self.needs) {
+            if let Err(e) = check_size(&input.path, &reader.info, &self.needs) {
                 if !out.send(fail(e)) {
                     return Ok(());
                 }
@@ -109,14 +110,15 @@ impl Source for Decode {
                         n += 1;
                     }
                     Ok(None) => match reader.info.frames_announced {
-                        Some(a) if n < a => break Err(format!("truncated: decoded {n} of the {a} frames the container announces")),
+                        Some(a) if n < a => {
+                            break InputError::Truncated { path: path.display().to_string(), decoded: n, announced: a }.end()
+                        }
                         _ => break Ok(()),
                     },
-                    Err(e) => break Err(e.chain()),
+                    Err(e) => break read(e).end(),
                 }
             };
             self.counters.input(&input.path, &reader.info, n);
-            let end = end.map_err(|e| format!("{}: {e}", path.display()));
             if !out.send(Item::End(input.clone(), end)) {
                 return Ok(());
             }

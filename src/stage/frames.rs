@@ -243,7 +243,7 @@ impl Sink for Frames {
             }
             Item::End(input, Err(e)) => {
                 self.abort();
-                self.failed.push((input.path.clone(), e));
+                self.failed.push((input.path.clone(), e.to_string()));
                 Counters::add(&self.counters.inputs_failed, 1);
             }
             Item::Frame(..) => {}

@@ -2,7 +2,7 @@
 //! helpers shared by the sources.
 
 use super::{Counters, Emit};
-use crate::frame::{Frame, Input, InputInfo, Item};
+use crate::frame::{Frame, Input, InputError, InputInfo, Item};
 use std::path::PathBuf;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;
@@ -43,13 +43,14 @@ impl Needs {
     }
 }
 
-pub(crate) fn check_size(info: &InputInfo, needs: &Needs) -> Result<(), String> {
+pub(crate) fn check_size(path: &str, info: &InputInfo, needs: &Needs) -> Result<(), InputError> {
     if info.width < needs.width || info.height < needs.height {
-        return Err(format!("frames are {}x{}, smaller than a {}x{} patch", info.width, info.height, needs.width, needs.height));
+        let (width, height, patch) = (info.width, info.height, (needs.width, needs.height));
+        return Err(InputError::TooSmall { path: path.into(), width, height, patch });
     }
     if let Some(n) = info.frames_announced {
         if n < needs.frames {
-            return Err(format!("{n} frames, shorter than one window of {}", needs.frames));
+            return Err(InputError::TooShort { path: path.into(), frames: n, window: needs.frames as usize });
         }
     }
     Ok(())
@@ -73,8 +74,8 @@ pub(crate) fn emit_clip(
         codec: codec.into(),
         pixel_format: "rgbf32".into(),
     };
-    if let Err(e) = check_size(&info, needs) {
-        return out.send(Item::End(input.clone(), Err(format!("{}: {e}", input.path))));
+    if let Err(e) = check_size(&input.path, &info, needs) {
+        return out.send(Item::End(input.clone(), e.end()));
     }
     counters.input(&input.path, &info, frames.len() as u64);
     if !out.send(Item::Begin(input.clone(), info)) {

@@ -296,8 +296,8 @@ pub trait StageConfig: std::fmt::Debug {
 
 #[derive(Debug)]
 pub enum StageError {
-    /// One input cannot be processed; the message names what is wrong with it.
-    Input(Arc<Input>, String),
+    /// One input cannot be processed; the error names it and what is wrong with it.
+    Input(Arc<Input>, crate::frame::InputError),
     Fatal(crate::Error),
 }
 

@@ -5,7 +5,7 @@
 use super::{BuildContext, Built, Emit, Needs, StageConfig, StageError, StageResult, Transform};
 use crate::checks::Checker;
 use crate::checks::ConfigError;
-use crate::frame::{Img, Item, Pair};
+use crate::frame::{Img, InputError, Item, Pair};
 use crate::rng::{hash, hash_str, Rng};
 use serde::{Deserialize, Serialize};
 
@@ -73,6 +73,21 @@ pub struct Selector {
     pub placement: Placement,
 }
 
+/// A frame smaller than a patch.
+#[derive(Debug, Clone, Copy)]
+pub struct TooSmall {
+    pub width: usize,
+    pub height: usize,
+    pub patch: usize,
+}
+
+impl TooSmall {
+    /// The input's failure, naming it.
+    pub fn named(self, path: &str) -> InputError {
+        InputError::TooSmall { path: path.into(), width: self.width, height: self.height, patch: (self.patch, self.patch) }
+    }
+}
+
 impl Selector {
     pub fn new(cfg: &PatchesConfig) -> Selector {
         Selector { size: cfg.size, per_window: cfg.per_window, placement: cfg.placement }
@@ -82,10 +97,10 @@ impl Selector {
     ///
     /// # Errors
     /// The frame is smaller than a patch.
-    pub fn positions(&self, seed: u64, input: u64, window: u64, w: usize, h: usize) -> Result<Vec<(usize, usize)>, String> {
+    pub fn positions(&self, seed: u64, input: u64, window: u64, w: usize, h: usize) -> Result<Vec<(usize, usize)>, TooSmall> {
         let s = self.size;
         if w < s || h < s {
-            return Err(format!("frames are {w}x{h}, smaller than a {s}x{s} patch"));
+            return Err(TooSmall { width: w, height: h, patch: s });
         }
         Ok(match self.placement {
             Placement::Random => {
@@ -173,7 +188,7 @@ impl Transform for Patches {
             let pos = self
                 .selector
                 .positions(self.seed, s.input.id, s.window, full.w, full.h)
-                .map_err(|e| StageError::Input(s.input.clone(), format!("{}: {e}", s.input.path)))?;
+                .map_err(|e| StageError::Input(s.input.clone(), e.named(&s.input.path)))?;
             let sz = self.selector.size;
             s.pairs = pos
                 .into_iter()

@@ -513,7 +513,7 @@ impl Sink for Shards {
             }
             Item::End(input, Err(e)) => {
                 self.discard();
-                self.failed.push((input.path.clone(), e));
+                self.failed.push((input.path.clone(), e.to_string()));
                 Counters::add(&self.counters.inputs_failed, 1);
             }
         }

@@ -6,7 +6,7 @@ use super::input::emit_clip;
 use super::{BuildContext, Built, Counters, Emit, InputList, Needs, Source, StageConfig};
 use crate::checks::Checker;
 use crate::checks::ConfigError;
-use crate::frame::{Frame, FrameData, Input, Item};
+use crate::frame::{Frame, FrameData, Input, InputError, Item};
 use crate::render::motion::{MotionConfig, Sprite, WindowMotion};
 use crate::render::texture::{procedural_texture, sample};
 use crate::rng::{hash, hash_str, Rng};
@@ -111,9 +111,9 @@ impl StageConfig for StillsConfig {
 }
 
 /// Reads a PNG into planar encoded values in [0, 1].
-fn read_png(path: &std::path::Path) -> Result<(usize, usize, [Vec<f32>; 3]), String> {
-    let bytes = std::fs::read(path).map_err(|e| e.to_string())?;
-    let (w, h, rgb) = crate::io::png::read_rgb8(&bytes).map_err(|e| e.to_string())?;
+fn read_png(path: &std::path::Path) -> crate::Result<(usize, usize, [Vec<f32>; 3])> {
+    let bytes = std::fs::read(path).map_err(|cause| crate::Error::Io { path: path.into(), cause })?;
+    let (w, h, rgb) = crate::io::png::read_rgb8(&bytes).map_err(crate::Error::format(path))?;
     let p = std::array::from_fn(|c| (0..w * h).map(|i| rgb[i * 3 + c] as f32 / 255.0).collect());
     Ok((w, h, p))
 }
@@ -267,7 +267,7 @@ impl Source for Stills {
                 Some(p) => match read_png(p) {
                     Ok(i) => i,
                     Err(e) => {
-                        if !out.send(Item::End(input.clone(), Err(format!("{}: {e}", p.display())))) {
+                        if !out.send(Item::End(input.clone(), InputError::Read(e).end())) {
                             return Ok(());
                         }
                         continue;

@@ -150,7 +150,7 @@ impl Sink for TrainerSink {
                 }
                 self.pump(false)?;
             }
-            Item::End(input, Err(e)) => self.failed.push((input.path.clone(), e)),
+            Item::End(input, Err(e)) => self.failed.push((input.path.clone(), e.to_string())),
             _ => {}
         }
         Ok(())

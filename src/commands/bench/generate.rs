@@ -208,7 +208,7 @@ fn bench_table(mode: &str, clip: &std::path::Path, out: &std::path::Path) -> cra
             t.retain(|k, _| k == "inputs" || k == "dir");
         }
     }
-    crate::config::apply_sets(&mut table, &sets).map_err(crate::Error::Invalid)?;
+    crate::config::apply_sets(&mut table, &sets)?;
     Ok(table)
 }
 

@@ -59,9 +59,7 @@ impl DeblurFile {
     /// # Errors
     /// An unknown key or a bad value, named.
     pub fn from_table(table: toml::Table, origin: &str) -> Result<DeblurFile> {
-        let f: DeblurFile = toml::Value::Table(table)
-            .try_into()
-            .map_err(|e: toml::de::Error| Error::ConfigText(format!("{origin}: {}", e.to_string().trim())))?;
+        let f: DeblurFile = toml::Value::Table(table).try_into().map_err(Error::toml(origin, None))?;
         f.deblur.check("deblur")?;
         Ok(f)
     }

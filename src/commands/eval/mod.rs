@@ -203,9 +203,7 @@ impl EvalFile {
     /// # Errors
     /// Unreadable, not TOML, an unknown key or a bad value (named).
     pub fn from_table(table: toml::Table, origin: &str) -> Result<EvalFile> {
-        let f: EvalFile = toml::Value::Table(table)
-            .try_into()
-            .map_err(|e: toml::de::Error| Error::ConfigText(format!("{origin}: {}", e.to_string().trim())))?;
+        let f: EvalFile = toml::Value::Table(table).try_into().map_err(Error::toml(origin, None))?;
         let errs = f.validate();
         if !errs.is_empty() {
             return Err(Error::Config(errs));
