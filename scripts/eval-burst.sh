@@ -44,4 +44,6 @@ for kind, n in [(k, n) for k in kinds for n in ns]:
               f"{s['first']:.2f} / {s['middle']:.2f} / {s['last']:.2f} | {100 * c['direction']:.0f}% | {c['count']} |")
     d = lambda k: rows["phase_coded"]["burst"][k] - rows["conventional"]["burst"][k]
     print(f"| {kind} | {n} | coded minus conventional | {d('first'):+.2f} | {d('middle'):+.2f} | {d('last'):+.2f} | {d('all'):+.2f} | | | |")
+    m = rows["phase_coded"]["sharp_middle"]
+    print(f"| {kind} | {n} | true middle sub-frame, repeated | {m['first']:.2f} | | {m['last']:.2f} | | | | |")
 PY

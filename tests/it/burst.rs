@@ -161,6 +161,10 @@ fn a_tiny_burst_model_trained_through_the_cli_deblurs_into_k_frames_in_order() {
     // its middle, and the single-frame baseline was run.
     assert!(rec["blurred"]["middle"].as_f64().unwrap() > rec["blurred"]["first"].as_f64().unwrap(), "{rec}");
     assert!(rec["single"]["all"].as_f64().is_some() && rec["right_order"].is_boolean(), "{rec}");
+    // The true middle sub-frame is itself at the middle, and differs from the moved ends.
+    let m = &rec["sharp_middle"];
+    assert_eq!(m["middle"].as_f64(), Some(99.0), "{rec}");
+    assert!(m["first"].as_f64().unwrap() < 60.0 && m["last"].as_f64().unwrap() < 60.0, "{rec}");
     assert!(std::fs::read_to_string(ev.join("burst.md")).unwrap().contains("right order"));
     // A single-frame model is refused by name; so is a burst into one image file.
     let o = run(&[

@@ -4,7 +4,10 @@
 //! each is scored against its own sub-frame. Beside it: the blurred input and a single-frame
 //! model's one output, each scored against every sub-frame (the baseline: a user with only a
 //! deblurred still), and the direction score, the share of windows whose first and last outputs
-//! are closer to the first and last sub-frames than to the last and first (50% is a coin).
+//! are closer to the first and last sub-frames than to the last and first (50% is a coin). And
+//! the true middle sub-frame itself, scored against every sub-frame: how far the ends are from
+//! the middle, so the most a model blind to the time could score there even if it restored the
+//! middle perfectly (the room a burst model has at the ends).
 
 use super::EvalFile;
 use crate::imaging::to_8bit;
@@ -56,6 +59,8 @@ pub struct BurstRecord {
     pub single: Option<PerTime>,
     /// The blurred capture against every sub-frame.
     pub blurred: PerTime,
+    /// The true middle sub-frame against every sub-frame (99 dB at the middle itself).
+    pub sharp_middle: PerTime,
     /// First and last outputs closer to the first and last sub-frames than to the reverse.
     pub right_order: bool,
 }
@@ -70,6 +75,7 @@ pub struct BurstCell {
     pub burst: PerTime,
     pub single: Option<PerTime>,
     pub blurred: PerTime,
+    pub sharp_middle: PerTime,
     /// Share of windows in the right order, in [0, 1].
     pub direction: f64,
 }
@@ -138,6 +144,7 @@ pub fn run(
                         PerTime::of(&(0..n).map(|k| psnr(&y, k)).collect::<Vec<_>>())
                     });
                     let input: Vec<f64> = (0..n).map(|k| psnr(&blurred, k)).collect();
+                    let sharp_middle: Vec<f64> = (0..n).map(|k| psnr(&sharp[n / 2], k)).collect();
                     let (a, z) = (n - 1, 0);
                     let right = sq_dist(&outs[z], &sharp[z]) + sq_dist(&outs[a], &sharp[a]);
                     let reversed = sq_dist(&outs[z], &sharp[a]) + sq_dist(&outs[a], &sharp[z]);
@@ -150,6 +157,7 @@ pub fn run(
                         burst: PerTime::of(&burst),
                         single,
                         blurred: PerTime::of(&input),
+                        sharp_middle: PerTime::of(&sharp_middle),
                         right_order: right < reversed,
                     });
                     bar.inc(1);
@@ -209,6 +217,7 @@ fn cells(records: &[BurstRecord]) -> Vec<BurstCell> {
                 burst: PerTime::mean(&sel.iter().map(|r| &r.burst).collect::<Vec<_>>()),
                 single: (!singles.is_empty()).then(|| PerTime::mean(&singles)),
                 blurred: PerTime::mean(&sel.iter().map(|r| &r.blurred).collect::<Vec<_>>()),
+                sharp_middle: PerTime::mean(&sel.iter().map(|r| &r.sharp_middle).collect::<Vec<_>>()),
                 direction: sel.iter().filter(|r| r.right_order).count() as f64 / sel.len().max(1) as f64,
             }
         })
@@ -216,7 +225,8 @@ fn cells(records: &[BurstRecord]) -> Vec<BurstCell> {
 }
 
 /// `burst.md`: per motion kind, N and sigma, PSNR (RGB, dB) at the first, middle and last
-/// sub-frames and over all, for the burst model, the single-frame model repeated and the input.
+/// sub-frames and over all, for the burst model, the single-frame model repeated and the input;
+/// the true middle sub-frame against the first and last.
 pub fn markdown(r: &BurstReport) -> String {
     let mut s = format!(
         "# pipeline eval --burst\n\nBurst model: {}  \nSingle-frame baseline: {}  \nCamera: {}  \nVideos: {}  \nMetrics: PSNR RGB dB, {}\n\n",
@@ -227,19 +237,21 @@ pub fn markdown(r: &BurstReport) -> String {
         r.convention
     );
     s.push_str(
-        "| motion | N | sigma | burst first / middle / last / all | single-frame repeated | blurred input | right order | windows |\n",
+        "| motion | N | sigma | burst first / middle / last / all | single-frame repeated | blurred input | true middle vs first / last | right order | windows |\n",
     );
-    s.push_str("|---|---|---|---|---|---|---|---|\n");
+    s.push_str("|---|---|---|---|---|---|---|---|---|\n");
     let fmt = |p: &PerTime| format!("{:.2} / {:.2} / {:.2} / {:.2}", p.first, p.middle, p.last, p.all);
     for c in &r.table {
         s.push_str(&format!(
-            "| {} | {} | {} | {} | {} | {} | {:.0}% | {} |\n",
+            "| {} | {} | {} | {} | {} | {} | {:.2} / {:.2} | {:.0}% | {} |\n",
             c.motion,
             c.window,
             c.sigma,
             fmt(&c.burst),
             c.single.as_ref().map_or("-".into(), fmt),
             fmt(&c.blurred),
+            c.sharp_middle.first,
+            c.sharp_middle.last,
             100.0 * c.direction,
             c.count
         ));
