@@ -73,7 +73,7 @@ impl StageConfig for ShardsConfig {
                     c.keys.insert(i.key.clone());
                 }
                 Ok(()) => c.redo.push((i.path.clone(), "made with other settings".into())),
-                Err(why) => c.redo.push((i.path.clone(), why)),
+                Err(why) => c.redo.push((i.path.clone(), why.to_string())),
             }
         }
         Ok(c)
@@ -104,34 +104,51 @@ pub struct ManifestShard {
     pub crc32: Option<String>,
 }
 
+/// Why a shard a manifest lists is not whole (its input is then redone).
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum NotWhole {
+    #[error("{name:?}: {why}")]
+    NotPlain { name: String, why: &'static str },
+    #[error("{name}: a symbolic link, not a shard written here")]
+    Link { name: String },
+    #[error("{name}: {cause}")]
+    Io { name: String, cause: std::io::Error },
+    #[error("{name}: {got} bytes, the manifest says {want}")]
+    Size { name: String, got: u64, want: u64 },
+    #[error("{name}: CRC-32 {got}, the manifest says {want}")]
+    Crc { name: String, got: String, want: String },
+}
+
 impl ManifestShard {
     /// Checks the file in `dir` against the recorded size and checksum. The name was checked to
     /// be a plain file name when the manifest was loaded; a symbolic link is not followed.
     ///
     /// # Errors
     /// Why it is not whole: missing, another size, another checksum, a link.
-    pub fn verify(&self, dir: &Path) -> std::result::Result<(), String> {
+    pub fn verify(&self, dir: &Path) -> std::result::Result<(), NotWhole> {
+        let name = || self.name.clone();
         if let Some(why) = crate::io::paths::not_plain(&self.name) {
-            return Err(format!("{:?}: {why}", self.name));
+            return Err(NotWhole::NotPlain { name: name(), why });
         }
         let p = dir.join(&self.name);
         if std::fs::symlink_metadata(&p).is_ok_and(|m| m.file_type().is_symlink()) {
-            return Err(format!("{}: a symbolic link, not a shard written here", self.name));
+            return Err(NotWhole::Link { name: name() });
         }
-        let meta = std::fs::metadata(&p).map_err(|e| format!("{}: {e}", self.name))?;
-        if let Some(b) = self.bytes {
-            if meta.len() != b {
-                return Err(format!("{}: {} bytes, the manifest says {b}", self.name, meta.len()));
+        let io = |cause| NotWhole::Io { name: name(), cause };
+        let meta = std::fs::metadata(&p).map_err(io)?;
+        if let Some(want) = self.bytes {
+            if meta.len() != want {
+                return Err(NotWhole::Size { name: name(), got: meta.len(), want });
             }
         }
-        if let Some(c) = &self.crc32 {
+        if let Some(want) = &self.crc32 {
             let mut h = crc32fast::Hasher::new();
-            let mut f = File::open(&p).map_err(|e| format!("{}: {e}", self.name))?;
-            std::io::copy(&mut f, &mut HashWriter { inner: std::io::sink(), crc: &mut h, bytes: 0 })
-                .map_err(|e| format!("{}: {e}", self.name))?;
+            let mut f = File::open(&p).map_err(io)?;
+            std::io::copy(&mut f, &mut HashWriter { inner: std::io::sink(), crc: &mut h, bytes: 0 }).map_err(io)?;
             let got = format!("{:08x}", h.finalize());
-            if &got != c {
-                return Err(format!("{}: CRC-32 {got}, the manifest says {c}", self.name));
+            if &got != want {
+                return Err(NotWhole::Crc { name: name(), got, want: want.clone() });
             }
         }
         Ok(())
@@ -180,7 +197,7 @@ impl ManifestInput {
     ///
     /// # Errors
     /// The first shard that is not whole, and why.
-    pub fn verify(&self, dir: &Path) -> std::result::Result<(), String> {
+    pub fn verify(&self, dir: &Path) -> std::result::Result<(), NotWhole> {
         self.shards.iter().try_for_each(|s| s.verify(dir))
     }
 }
