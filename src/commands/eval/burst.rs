@@ -139,12 +139,9 @@ pub fn run(
                     let outs = run_frame_burst(net, &blurred, rw, rh, tiling, &times);
                     let psnr = |img: &[u8], k: usize| quality(img, &sharp[k], rw, rh).psnr_rgb.min(99.0);
                     let burst: Vec<f64> = (0..n).map(|k| psnr(&outs[k], k)).collect();
-                    let single = baseline.map(|(b, _)| {
-                        let y = run_frame(b, &blurred, rw, rh, tiling);
-                        PerTime::of(&(0..n).map(|k| psnr(&y, k)).collect::<Vec<_>>())
-                    });
-                    let input: Vec<f64> = (0..n).map(|k| psnr(&blurred, k)).collect();
-                    let sharp_middle: Vec<f64> = (0..n).map(|k| psnr(&sharp[n / 2], k)).collect();
+                    // One image against every sub-frame.
+                    let against_all = |img: &[u8]| PerTime::of(&(0..n).map(|k| psnr(img, k)).collect::<Vec<_>>());
+                    let single = baseline.map(|(b, _)| against_all(&run_frame(b, &blurred, rw, rh, tiling)));
                     let (a, z) = (n - 1, 0);
                     let right = sq_dist(&outs[z], &sharp[z]) + sq_dist(&outs[a], &sharp[a]);
                     let reversed = sq_dist(&outs[z], &sharp[a]) + sq_dist(&outs[a], &sharp[z]);
@@ -156,8 +153,8 @@ pub fn run(
                         motion: motion.clone(),
                         burst: PerTime::of(&burst),
                         single,
-                        blurred: PerTime::of(&input),
-                        sharp_middle: PerTime::of(&sharp_middle),
+                        blurred: against_all(&blurred),
+                        sharp_middle: against_all(&sharp[n / 2]),
                         right_order: right < reversed,
                     });
                     bar.inc(1);
