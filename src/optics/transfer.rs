@@ -52,16 +52,108 @@ impl Curve {
     }
 }
 
+/// A camera response of the `sensor` stage: linear light in [0, 1] to the encoded value.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(untagged)]
+pub enum Response {
+    /// `"input"` (the input's own transfer curve: what the photographs were encoded with) or
+    /// one of the curves: `"srgb"`, `"gamma22"`, `"identity"`.
+    Named(ResponseName),
+    /// `{ gamma = 2.4 }`: the encoded value is linear^(1 / gamma).
+    Gamma { gamma: f64 },
+    /// The encoded values at evenly spaced linear values from 0 to 1 (2 or more, in [0, 1],
+    /// never decreasing), interpolated linearly: a measured response.
+    Table(Vec<f64>),
+}
+
+/// The named responses.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ResponseName {
+    Input,
+    Srgb,
+    Gamma22,
+    Identity,
+}
+
+impl Default for Response {
+    fn default() -> Self {
+        Response::Named(ResponseName::Input)
+    }
+}
+
+impl Response {
+    /// Why the response cannot be used, if it cannot.
+    pub fn problem(&self) -> Option<String> {
+        match self {
+            Response::Gamma { gamma } if !(0.1..=10.0).contains(gamma) => Some(format!("gamma {gamma} is outside 0.1 to 10")),
+            Response::Table(t) if t.len() < 2 => Some("a table needs 2 values or more (at linear 0 and 1)".into()),
+            Response::Table(t) => match t.iter().position(|v| !(0.0..=1.0).contains(v)) {
+                Some(i) => Some(format!("value {i} ({}) is outside 0 to 1", t[i])),
+                None => t
+                    .windows(2)
+                    .position(|w| w[1] < w[0])
+                    .map(|i| format!("value {} is below value {i}: a response never decreases", i + 1)),
+            },
+            _ => None,
+        }
+    }
+
+    /// What `key.json` records: the curve's name (the input's for `input`), `gamma G` or
+    /// `table of N`.
+    pub fn describe(&self, input: Curve) -> String {
+        match self {
+            Response::Named(n) => self.curve(input).map_or_else(|| format!("{n:?}"), |c| c.name().to_string()),
+            Response::Gamma { gamma } => format!("gamma {gamma}"),
+            Response::Table(t) => format!("table of {}", t.len()),
+        }
+    }
+
+    /// The curve a named response is (the input's for `input`).
+    fn curve(&self, input: Curve) -> Option<Curve> {
+        match self {
+            Response::Named(ResponseName::Input) => Some(input),
+            Response::Named(ResponseName::Srgb) => Some(Curve::Srgb),
+            Response::Named(ResponseName::Gamma22) => Some(Curve::Gamma22),
+            Response::Named(ResponseName::Identity) => Some(Curve::Identity),
+            _ => None,
+        }
+    }
+
+    /// The encoder of this response for frames of the curve `input`.
+    pub fn encoder(&self, input: Curve) -> Encoder {
+        if let Some(c) = self.curve(input) {
+            return Encoder::new(c);
+        }
+        match self.clone() {
+            Response::Gamma { gamma } => Encoder::from_fn(move |v| v.clamp(0.0, 1.0).powf(1.0 / gamma)),
+            Response::Table(t) => Encoder::from_fn(move |v| {
+                let x = v.clamp(0.0, 1.0) * (t.len() - 1) as f64;
+                let i = (x as usize).min(t.len() - 2);
+                t[i] + (x - i as f64) * (t[i + 1] - t[i])
+            }),
+            Response::Named(_) => unreachable!("a named response is a curve"),
+        }
+    }
+}
+
 /// Fast `encode` through a table of 65536 intervals with linear interpolation (exact below
 /// 1/1024; error below 2e-5 of full scale elsewhere, far under half an 8-bit step).
 pub struct Encoder {
-    curve: Curve,
+    /// The exact function, for the darkest values.
+    exact: Box<dyn Fn(f64) -> f64 + Send + Sync>,
     lut: Vec<f32>,
 }
 
 impl Encoder {
     pub fn new(curve: Curve) -> Encoder {
-        Encoder { curve, lut: (0..=65536u32).map(|i| curve.encode(i as f64 / 65536.0) as f32).collect() }
+        Encoder::from_fn(move |v| curve.encode(v))
+    }
+
+    /// The encoder of any response `f` (linear light in [0, 1] to the encoded value).
+    pub fn from_fn(f: impl Fn(f64) -> f64 + Send + Sync + 'static) -> Encoder {
+        let lut = (0..=65536u32).map(|i| f(i as f64 / 65536.0) as f32).collect();
+        Encoder { exact: Box::new(f), lut }
     }
 
     /// The table [`Encoder::encode`] interpolates: `curve.encode(i / 65536)` for i in 0..=65536.
@@ -74,7 +166,7 @@ impl Encoder {
         let x = v.clamp(0.0, 1.0) * 65536.0;
         if x < 64.0 {
             // The power law's slope is unbounded at 0: compute the darkest values exactly.
-            return self.curve.encode(v as f64) as f32;
+            return (self.exact)(v as f64) as f32;
         }
         let i = (x as usize).min(65535);
         let f = x - i as f32;
@@ -101,5 +193,25 @@ mod tests {
         }
         // sRGB reference values (IEC 61966-2-1): 0.5 encoded is 0.21404 linear.
         assert!((Curve::Srgb.to_linear(0.5) - 0.214_041).abs() < 1e-6);
+    }
+
+    #[test]
+    fn responses_read_from_toml_encode_as_written_and_bad_ones_are_named() {
+        let read = |v: &str| toml::from_str::<std::collections::BTreeMap<String, Response>>(&format!("r = {v}")).unwrap()["r"].clone();
+        let gamma = read("{ gamma = 2.4 }");
+        let e = gamma.encoder(Curve::Srgb);
+        for v in [1e-7f32, 0.001, 0.2, 0.9] {
+            assert!((e.encode(v) as f64 - (v as f64).powf(1.0 / 2.4)).abs() < 2e-5, "{v}");
+        }
+        // A table: 0.25 of the way is a quarter between its first two of four intervals' ends.
+        let e = read("[0.0, 0.4, 0.8, 1.0]").encoder(Curve::Srgb);
+        assert!((e.encode(0.5) - 0.6).abs() < 1e-5 && (e.encode(1.0) - 1.0).abs() < 1e-6);
+        assert_eq!(read("\"input\"").describe(Curve::Gamma22), "gamma22");
+        assert_eq!(read("\"srgb\"").describe(Curve::Identity), "srgb");
+        assert!(read("\"input\"").problem().is_none() && gamma.problem().is_none());
+        assert!(read("{ gamma = 0.0 }").problem().unwrap().contains("outside 0.1 to 10"));
+        assert!(read("[0.5]").problem().unwrap().contains("2 values"));
+        assert!(read("[0.0, 1.5]").problem().unwrap().contains("value 1 (1.5)"));
+        assert!(read("[0.0, 0.6, 0.5, 1.0]").problem().unwrap().contains("value 2 is below value 1"));
     }
 }

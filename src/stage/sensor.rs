@@ -12,7 +12,7 @@ use crate::checks::{Checker, ConfigError};
 use crate::frame::{Img, Item};
 use crate::imaging::noise::quantise;
 use crate::imaging::sensor::{Bayer, Sensor};
-use crate::optics::transfer::{Curve, Encoder};
+use crate::optics::transfer::{Curve, Encoder, Response};
 use crate::rng::{hash, hash_str, unit};
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
@@ -42,6 +42,11 @@ pub struct SensorConfig {
     /// 5x5 filters).
     #[serde(default)]
     pub demosaic: crate::imaging::sensor::Demosaic,
+    /// The camera response from linear light to the encoded values written (targets too):
+    /// `"input"` (the input's own transfer curve), `"srgb"`, `"gamma22"`, `"identity"`,
+    /// `{ gamma = G }`, or a table of encoded values at evenly spaced linear values.
+    #[serde(default)]
+    pub response: Response,
 }
 
 fn d_full_well() -> f64 {
@@ -65,6 +70,9 @@ impl StageConfig for SensorConfig {
         if self.iso[0] > self.iso[1] {
             c.fail("iso", format!("range [{}, {}] is reversed", self.iso[0], self.iso[1]));
         }
+        if let Some(why) = self.response.problem() {
+            c.fail("response", why);
+        }
         c.errors
     }
     fn per_pixel(&self) -> bool {
@@ -87,7 +95,7 @@ impl SensorStage {
         if let Some((_, e)) = self.encoders.iter().find(|(k, _)| *k == c) {
             return e.clone();
         }
-        let e = Arc::new(Encoder::new(c));
+        let e = Arc::new(self.cfg.response.encoder(c));
         self.encoders.push((c, e.clone()));
         e
     }
@@ -124,7 +132,7 @@ impl Transform for SensorStage {
             "sensor": {
                 "full_well": sensor.full_well, "read_noise": sensor.read_noise, "iso": iso, "gain": sensor.gain,
                 "bayer": self.cfg.bayer, "demosaic": self.cfg.bayer.map(|_| self.cfg.demosaic),
-                "response": s.curve.name(),
+                "response": self.cfg.response.describe(s.curve),
             }
         });
         s.capture = Some(capture.to_string().into());

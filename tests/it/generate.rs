@@ -388,6 +388,32 @@ fn the_realistic_capture_chain_is_seeded_recorded_and_noisier_at_high_iso() {
     let high = lq(&run_with("realistic_high", &[grid, "transforms.sensor.iso=[3200.0, 3200.0]"]));
     assert!(mse(&low, &low2) > 0.0, "the seed draws the noise");
     assert!(mse(&high, &low) > 4.0 * mse(&low, &low2), "{} vs {}", mse(&high, &low), mse(&low, &low2));
+    // The camera response: a power law of gamma 1 and the table [0, 1] are the identity curve,
+    // byte for byte; the default (the input's sRGB) is not; key.json names each.
+    let iso = "transforms.sensor.iso=[100.0, 100.0]";
+    let with = |name: &str, response: &str| run_with(name, &[grid, iso, &format!("transforms.sensor.response={response}")]);
+    let ident = with("response_identity", "identity");
+    for (name, response, said) in [("response_gamma", "{gamma = 1.0}", "gamma 1"), ("response_table", "[0.0, 1.0]", "table of 2")] {
+        let m = with(name, response);
+        assert_eq!(lq(&m), lq(&ident), "{response}");
+        let json: serde_json::Value = serde_json::from_slice(&m.iter().find(|(n, _)| n.ends_with(".json")).unwrap().1).unwrap();
+        assert_eq!(json["capture"]["sensor"]["response"], said);
+    }
+    assert!(mse(&lq(&ident), &low) > 4.0 * mse(&low, &low2), "the response changes the capture");
+    // A response that decreases is refused by its key.
+    let out = scratch("response_bad");
+    let o = run(&[
+        "generate",
+        FIXTURE,
+        "-o",
+        out.to_str().unwrap(),
+        "--config",
+        cfg,
+        "--set",
+        "transforms.sensor.response=[0.0, 0.6, 0.5, 1.0]",
+    ]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("transforms.sensor.response") && stderr(&o).contains("never decreases"), "{}", stderr(&o));
 }
 
 /// The RGB bytes of a PNG.
