@@ -16,6 +16,18 @@ pub struct Frame {
     /// What moved in this frame's window, as JSON for `key.json` (the `stills` source's
     /// per-window motion), or `None` (video).
     pub motion: Option<Arc<str>>,
+    /// Highlights made bright again ([`Highlights`]), read through [`Frame::linear_row`].
+    pub highlights: Option<Highlights>,
+}
+
+/// Clipped highlights made bright again before the blur (as RSBlur does): linear values at or
+/// above `threshold` are multiplied by `gain`, so a light's streak is as bright as the light was,
+/// and the capture saturates where a real one would.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Highlights {
+    /// Linear light; 1 boosts only pixels at the top code value.
+    pub threshold: f32,
+    pub gain: f32,
 }
 
 /// Columns to read from a row: a contiguous run from `start`, explicit indices, or a run from
@@ -85,7 +97,7 @@ fn lut16(curve: Curve) -> &'static [f32; 65536] {
 
 impl Frame {
     pub fn new(width: usize, height: usize, data: FrameData) -> Frame {
-        Frame { width, height, data: Arc::new(data), curve: None, motion: None }
+        Frame { width, height, data: Arc::new(data), curve: None, motion: None, highlights: None }
     }
 
     /// Linear light of channel `c`, row `y`, at `cols`, into `out` (its length is the count).
@@ -93,6 +105,15 @@ impl Frame {
     /// # Panics
     /// If the frame has not been through `linearize`.
     pub fn linear_row(&self, c: usize, y: usize, cols: Cols, out: &mut [f32]) {
+        self.encoded_to_linear_row(c, y, cols, out);
+        if let (Some(h), false) = (self.highlights, matches!(cols, Cols::Mirror(_))) {
+            // (A mirrored row's columns came through this function already.)
+            out.iter_mut().filter(|v| **v >= h.threshold).for_each(|v| *v *= h.gain);
+        }
+    }
+
+    /// [`Frame::linear_row`] before the highlights.
+    fn encoded_to_linear_row(&self, c: usize, y: usize, cols: Cols, out: &mut [f32]) {
         if let Cols::Mirror(start) = cols {
             // The columns inside the frame as one run through the fast path.
             let (n, w) = (out.len(), self.width as isize);
@@ -396,6 +417,31 @@ impl InputError {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn highlights_multiply_the_top_code_once_whatever_the_columns() {
+        // One row of 6: 255 at columns 0 and 4, darker elsewhere.
+        let row: Vec<u8> = vec![255, 200, 10, 254, 255, 0];
+        let mut f = Frame::new(6, 1, FrameData::Planar8([row.clone(), row.clone(), row]));
+        f.curve = Some(Curve::Srgb);
+        f.highlights = Some(Highlights { threshold: Curve::Srgb.to_linear(254.5 / 255.0) as f32, gain: 3.0 });
+        let lin = |v: u8| Curve::Srgb.to_linear(v as f64 / 255.0) as f32;
+        let want = [3.0, lin(200), lin(10), lin(254), 3.0, 0.0];
+        let mut out = [0.0f32; 6];
+        f.linear_row(1, 0, Cols::From(0), &mut out);
+        assert_eq!(out, want);
+        let mut out = [0.0f32; 2];
+        f.linear_row(0, 0, Cols::Index(&[4, 3]), &mut out);
+        assert_eq!(out, [3.0, lin(254)]);
+        // Mirrored at the left border (columns -2 and -1 reflect into the row): each value
+        // boosted once.
+        let mut out = [0.0f32; 4];
+        f.linear_row(2, 0, Cols::Mirror(-2), &mut out);
+        for (x, o) in out.iter().enumerate() {
+            let sx = crate::optics::fft::reflect(x as isize - 2, 6);
+            assert_eq!(*o, want[sx], "column {x}");
+        }
+    }
 
     #[test]
     fn table_rows_look_up_every_value_at_every_length() {

@@ -264,7 +264,9 @@ impl CameraBlur {
             frame_height: h,
             cropped: self.crop_first.is_some(),
             motion: mid.motion.clone(),
-            capture: None,
+            capture: mid
+                .highlights
+                .map(|h| serde_json::json!({ "highlights": { "gain": h.gain, "threshold_linear": h.threshold } }).to_string().into()),
             times: self.times.clone(),
             pairs,
         };

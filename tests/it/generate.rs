@@ -400,6 +400,19 @@ fn the_realistic_capture_chain_is_seeded_recorded_and_noisier_at_high_iso() {
         assert_eq!(json["capture"]["sensor"]["response"], said);
     }
     assert!(mse(&lq(&ident), &low) > 4.0 * mse(&low, &low2), "the response changes the capture");
+    // Highlights made bright again: the capture gains light (the streaks of the clipped pixels),
+    // the targets at the top code stay there, and key.json records the gain.
+    let base = with("response_srgb", "srgb");
+    let bright = run_with("highlights", &[grid, iso, "transforms.linear.highlights={gain=[4.0, 4.0]}"]);
+    let sum = |m: &[(String, Vec<u8>)], ext: &str| -> Vec<u64> {
+        m.iter().filter(|(n, _)| n.ends_with(ext)).map(|(_, b)| image_rgb(b).iter().map(|&v| u64::from(v)).sum()).collect()
+    };
+    assert!(sum(&bright, ".lq.png").iter().zip(sum(&base, ".lq.png")).all(|(a, b)| *a >= b));
+    assert!(sum(&bright, ".lq.png").iter().sum::<u64>() > sum(&base, ".lq.png").iter().sum::<u64>());
+    assert_eq!(sum(&bright, ".gt.png"), sum(&base, ".gt.png"));
+    let json: serde_json::Value = serde_json::from_slice(&bright.iter().find(|(n, _)| n.ends_with(".json")).unwrap().1).unwrap();
+    assert_eq!(json["capture"]["highlights"]["gain"], 4.0);
+    assert_eq!(json["capture"]["sensor"]["iso"].as_f64().map(f64::round), Some(100.0));
     // A response that decreases is refused by its key.
     let out = scratch("response_bad");
     let o = run(&[
