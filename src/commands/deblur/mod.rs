@@ -376,8 +376,8 @@ fn check_paths(input: &Path, out: &Path, burst: Option<usize>) -> Result<OutKind
     if same {
         return Err(Error::Usage(format!("{}: the output is the input; choose another output path", out.display())));
     }
-    // A path that names nothing (and is no glob) is a usage error: it used to leave an empty
-    // folder named like the output image.
+    // A path that names nothing (and is no glob) is a usage error, before any output folder is
+    // made.
     if !input.to_string_lossy().contains('*') && std::fs::symlink_metadata(input).is_err() && input != Path::new("-") {
         return Err(Error::Usage(format!("{}: no such file or folder", input.display())));
     }
@@ -407,7 +407,7 @@ pub fn command(a: DeblurArgs) -> anyhow::Result<()> {
     let mut d = crate::commands::deblur::DeblurFile::from_table(table, &origin)?.deblur;
     d.tile = tile.unwrap_or(d.tile);
     d.overlap = overlap.unwrap_or(d.overlap);
-    // The flags obey the keys' rules (`--tile 0` used to run with tiles of 16).
+    // The flags obey the keys' rules (`--tile 0` is refused as `tile = 0` is).
     if tile.is_some() || overlap.is_some() {
         d.check("")?;
     }
