@@ -12,6 +12,9 @@
 #   SEED0=3000 TRAIN_ARGS="--init models" ...       # or start from the shipped models (they travel with the tree)
 #   (NETS: docs/gpu/train.py --nets; by default U-Net 32 for each camera, U-Net 16 coded for the
 #   width comparison at equal patches, the shallow model coded)
+#   BURST=1 TRAIN_ARGS="--init models --lr 3e-4" bash docs/gpu/run.sh GPU_DIR OUT 500
+#                                                   # the burst pair: burst shards (N = 9, a target
+#                                                   # per sub-frame), from the shipped burst models
 #
 # OUT receives the models (PyTorch names; `pipeline deblur --model OUT/unet32-coded.safetensors`),
 # history.csv, report.json and train.log; the end of the generators' logs is printed.
@@ -20,7 +23,11 @@ cd "$(dirname "$0")/../.."
 G=${1:?GPU_DIR}
 OUT=${2:?OUT}
 SECS=${3:-470}
-NETS=${4:-unet32:coded,unet32:conventional,unet16:coded,shallow32:coded}
+if [ -n "${BURST:-}" ]; then
+  NETS=${4:-burst-unet32:coded,burst-unet32:conventional}
+else
+  NETS=${4:-unet32:coded,unet32:conventional,unet16:coded,shallow32:coded}
+fi
 start=$(date +%s)
 until=$((start + SECS))
 W=${WORK:-/tmp/gpu-work}
@@ -47,14 +54,16 @@ echo "run.sh: $nproc cores, $procs_coded generator processes for the coded camer
 gen() {
   # One process per core (--shard-index / --shard-count split the photographs; each input's
   # randomness comes from the seed and its name, so the split changes nothing in the data).
-  local cam=$1 procs=$2 p=0 ns=(9 7 11 13)
+  local cam=$1 procs=$2 p=0 ns=(9 7 11 13) burst=()
+  # Burst shards: N = 9 only (every sample holds N targets; one layout per run).
+  [ -n "${BURST:-}" ] && ns=(9) && burst=(--set transforms.blur.burst=true)
   while [ "$(date +%s)" -lt "$until" ]; do
-    local n=${ns[$((p % 4))]} pids=()
+    local n=${ns[$((p % ${#ns[@]}))]} pids=()
     for ((i = 0; i < procs; i++)); do
       RAYON_NUM_THREADS=1 "$G/pipeline" run pipelines/train-data.toml -o "$W/shards/$cam/p$p" --progress never \
         --shard-index $i --shard-count $procs --set seed=$((${SEED0:-1000} + p)) --set transforms.blur.window=$n \
         --set sources.stills.frames=$((8 * n)) --set transforms.patches.per_window=6 \
-        --set transforms.blur.camera.type=$cam --set sinks.shards.prefix=p$p \
+        --set transforms.blur.camera.type=$cam --set sinks.shards.prefix=p$p "${burst[@]}" \
         --set "sources.stills.paths=[\"$W/photos/train\"]" --set "sources.stills.motion.object_paths=[\"$W/objects\"]" &
       pids+=($!)
     done

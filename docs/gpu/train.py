@@ -8,6 +8,12 @@ they hold the same sharp patches, motions and noise, and differ only in the came
 
     python3 docs/gpu/train.py --coded DIR --conventional DIR --out OUT --until UNIX_TIME [--nets unet32:coded,...]
 
+Burst shards (`transforms.blur.burst = true`: key.gt.00.png ... one target per sub-frame) train
+burst U-Nets (`--nets burst-unet32:coded,burst-unet32:conventional`; `burst-unet32f4` tells the time
+to all four decoder levels): each step draws one sub-frame k per sample, the time t = (k + 0.5) / K
+and that sub-frame as the target, as `pipeline train` does. A single-frame net on burst shards
+learns the middle sub-frame.
+
 What it does, as models/README.md describes for the CPU trainer: Huber loss (delta 0.02) on
 encoded values in [0, 1], Adam (eps 1e-8), flips and 90-degree rotations, the last layer zeroed
 (each net starts as the identity), a warm-up then a cosine decay that ends at --until; weights
@@ -50,16 +56,22 @@ def log(msg, f=None):
 
 
 def read_shard(path):
-    """{key: (lq uint8 HWC, gt uint8 HWC)} of one WebDataset shard (key.lq.png, key.gt.png, key.json)."""
+    """{key: (lq uint8 HWC, [gt uint8 HWC, ...])} of one WebDataset shard: key.lq.png with key.gt.png
+    (one target) or key.gt.00.png, key.gt.01.png, ... (a burst: one per sub-frame, in time order)."""
     out = {}
     with tarfile.open(path) as t:
         for m in t.getmembers():
             key, _, ext = m.name.partition(".")
-            if ext not in ("lq.png", "gt.png"):
+            if not (ext == "lq.png" or (ext.startswith("gt.") and ext.endswith(".png"))):
                 continue
             img = np.asarray(Image.open(io.BytesIO(t.extractfile(m).read())).convert("RGB"))
-            out.setdefault(key, {})[ext[:2]] = img
-    return {k: (v["lq"], v["gt"]) for k, v in out.items() if "lq" in v and "gt" in v}
+            out.setdefault(key, {})[ext[:-4]] = img
+    samples = {}
+    for k, v in out.items():
+        gts = [v[g] for g in sorted(g for g in v if g.startswith("gt"))]
+        if "lq" in v and gts:
+            samples[k] = (v["lq"], gts)
+    return samples
 
 
 class Pool:
@@ -89,11 +101,11 @@ class Pool:
                 keys = sorted(set.intersection(*[set(s) for s in shards]))
                 rows = []
                 for k in keys:
-                    gts = [s[k][1] for s in shards]
-                    if any(not np.array_equal(gts[0], g) for g in gts[1:]):
-                        self.mismatch += 1  # the cameras must share the sharp patch
+                    gts = [np.stack(s[k][1]) for s in shards]
+                    if any(g.shape != gts[0].shape or not np.array_equal(gts[0], g) for g in gts[1:]):
+                        self.mismatch += 1  # the cameras must share the sharp patches
                         continue
-                    rows.append(np.stack([s[k][0] for s in shards] + [gts[0]]))
+                    rows.append(np.stack([s[k][0] for s in shards] + list(gts[0])))
                 if rows:
                     split = "val" if zlib.crc32(os.path.basename(n).encode()) % 20 == 0 else "train"
                     with self.lock:
@@ -135,21 +147,35 @@ def load_init(net, path):
     if any(k.startswith(("Unet.", "Shallow.")) for k in sd):
         sd = {torch_name(k): v for k, v in sd.items()}
     missing, unexpected = net.load_state_dict(sd, strict=False)
-    if unexpected or any(not k.endswith("num_batches_tracked") for k in missing):
+    # A burst U-Net told the time on more levels than the file's starts their conditioning at
+    # zero (the file's network at every time), as `pipeline train` does with `init`.
+    if unexpected or any(not k.endswith("num_batches_tracked") and ".film." not in k for k in missing):
         raise SystemExit(f"{path}: does not fit {type(net).__name__} (missing {missing}, unexpected {unexpected})")
 
 
 class Samples:
-    """The samples on the device, [n, (coded, conventional, gt), c, h, w] uint8, in one buffer
-    that doubles when full (a torch.cat per new shard would copy every earlier sample again)."""
+    """The samples on the device, [n, (coded, conventional, gt...), c, h, w] uint8 (one gt, or K
+    for a burst), in one buffer that doubles when full (a torch.cat per new shard would copy every
+    earlier sample again). The first shard sets the layout; a shard of another is left out."""
 
-    def __init__(self, dev):
-        self.buf = torch.empty((0, 3, 3, 128, 128), dtype=torch.uint8, device=dev)
+    def __init__(self, dev, logf=None):
+        self.buf = None
+        self.dev, self.logf = dev, logf
         self.n = 0
+
+    @property
+    def targets(self):
+        """Targets per sample: 1, or K for burst shards (0 before the first shard)."""
+        return 0 if self.buf is None else self.buf.shape[1] - 2
 
     def add(self, chunks):
         for c in chunks:
             t = torch.from_numpy(c).permute(0, 1, 4, 2, 3)
+            if self.buf is None:
+                self.buf = torch.empty((0, *t.shape[1:]), dtype=torch.uint8, device=self.dev)
+            if t.shape[1:] != self.buf.shape[1:]:
+                log(f"a shard of samples {tuple(t.shape[1:])} among {tuple(self.buf.shape[1:])}: left out", self.logf)
+                continue
             if self.n + len(t) > len(self.buf):
                 grown = self.buf.new_empty((max(2 * len(self.buf), self.n + len(t), 1024), *self.buf.shape[1:]))
                 grown[:self.n] = self.buf[:self.n]
@@ -159,6 +185,10 @@ class Samples:
 
     def __len__(self):
         return self.n
+
+    def times(self, k):
+        """The times of sub-frames `k` (a tensor) as fractions of the exposure."""
+        return (k.float() + 0.5) / self.targets
 
     def __getitem__(self, i):
         return self.buf[:self.n][i]
@@ -231,12 +261,18 @@ def main():
     specs = []
     for item in a.nets.split(","):
         kind, cam = item.split(":")
-        arch = {"type": "unet", "base": int(kind[4:])} if kind.startswith("unet") else {"type": "shallow", "width": int(kind[7:])}
+        if kind.startswith("burst-unet"):
+            base, _, levels = kind[10:].partition("f")
+            arch = {"type": "burst_unet", "base": int(base), **({"levels": int(levels)} if levels else {})}
+        elif kind.startswith("unet"):
+            arch = {"type": "unet", "base": int(kind[4:])}
+        else:
+            arch = {"type": "shallow", "width": int(kind[7:])}
         specs.append((f"{kind}-{cam}", arch, {"coded": 0, "conventional": 1}[cam]))
     nets = []
     for name, arch, cam in specs:
         net = models.build(arch)
-        last = net.outc if arch["type"] == "unet" else net.out
+        last = net.outc if arch["type"] in ("unet", "burst_unet") else net.out
         torch.nn.init.zeros_(last.weight)
         torch.nn.init.zeros_(last.bias)
         for init in [os.path.join(a.init, name + ".safetensors"), os.path.join(a.init, name, "model.safetensors")] if a.init else []:
@@ -258,7 +294,7 @@ def main():
 
     t_start = time.time()
     pool = Pool([a.coded, a.conventional], logf)
-    data, val = Samples(dev), Samples(dev)
+    data, val = Samples(dev, logf), Samples(dev, logf)
 
     def absorb():
         data.add(pool.take("train"))
@@ -293,14 +329,18 @@ def main():
         lr = a.lr * min(1.0, (now - t0) / a.warmup) * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * frac)))
         absorb()
         idx = torch.randint(0, len(data), (a.batch,), generator=g).to(dev)
-        batch = augment(data[idx].float() / 255.0, g)  # [b, 3, c, h, w]
+        batch = augment(data[idx].float() / 255.0, g)  # [b, 2 + targets, c, h, w]
+        # One sub-frame per sample for the burst nets; the middle one for the others.
+        k = torch.randint(0, data.targets, (a.batch,), generator=g).to(dev)
+        rows = torch.arange(a.batch, device=dev)
         for n in nets:
             x = batch[:, n["cam"]].contiguous(memory_format=torch.channels_last)
-            y = batch[:, 2].contiguous(memory_format=torch.channels_last)
+            burst = n["arch"]["type"] == "burst_unet"
+            y = (batch[rows, 2 + k] if burst else batch[:, 2 + data.targets // 2]).contiguous(memory_format=torch.channels_last)
             for pg in n["opt"].param_groups:
                 pg["lr"] = lr
             with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=amp):
-                out = n["net"](x)
+                out = n["net"](x, data.times(k)) if burst else n["net"](x)
             loss = huber(out.float(), y)
             n["opt"].zero_grad(set_to_none=True)
             loss.backward()
@@ -337,24 +377,35 @@ def main():
             gb = torch.Generator().manual_seed(a.seed + 1)
             for _ in range(50):
                 idx = torch.randint(0, len(data), (a.batch,), generator=gb).to(dev)
+                x = (data[idx, n["cam"]].float() / 255.0).contiguous(memory_format=torch.channels_last)
+                t = data.times(torch.randint(0, data.targets, (a.batch,), generator=gb).to(dev))
                 with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=amp):
-                    ema((data[idx, n["cam"]].float() / 255.0).contiguous(memory_format=torch.channels_last))
+                    ema(x, t) if n["arch"]["type"] == "burst_unet" else ema(x)
         ema.eval()
     write_all(final=True)
     report = {"steps": step, "batch": a.batch, "patches_per_model": step * a.batch, "samples": len(data),
               "held_out": len(val), "seconds": round(time.time() - t0, 1), "gt_mismatch": pool.mismatch, "val": {}}
     with torch.no_grad():
         for n in nets:
-            pin, pout = [], []
+            # Single-frame nets against the middle sub-frame; burst nets at every sub-frame.
+            burst = n["arch"]["type"] == "burst_unet"
+            ks = range(val.targets) if burst else [val.targets // 2]
+            pin, pout = {k: [] for k in ks}, {k: [] for k in ks}
             for i in range(0, len(val), 64):
                 v = val[i:i + 64].float() / 255.0
-                x, y = v[:, n["cam"]].contiguous(memory_format=torch.channels_last), v[:, 2]
-                out = n["ema"](x).float()
-                pin.append(psnr(x, y))
-                pout.append(psnr(out, y))
-            if pin:
-                pi, po = torch.cat(pin).mean().item(), torch.cat(pout).mean().item()
+                x = v[:, n["cam"]].contiguous(memory_format=torch.channels_last)
+                for k in ks:
+                    y = v[:, 2 + k]
+                    out = (n["ema"](x, torch.full((len(v),), (k + 0.5) / val.targets, device=dev)) if burst else n["ema"](x)).float()
+                    pin[k].append(psnr(x, y))
+                    pout[k].append(psnr(out, y))
+            if len(val):
+                at = {k: (torch.cat(pin[k]).mean().item(), torch.cat(pout[k]).mean().item()) for k in ks}
+                pi, po = sum(v[0] for v in at.values()) / len(at), sum(v[1] for v in at.values()) / len(at)
                 report["val"][n["name"]] = {"input_psnr": round(pi, 3), "output_psnr": round(po, 3), "gain": round(po - pi, 3)}
+                if burst:
+                    first, mid, last = at[0][1], at[val.targets // 2][1], at[val.targets - 1][1]
+                    report["val"][n["name"]]["output_first_middle_last"] = [round(first, 3), round(mid, 3), round(last, 3)]
                 log(f"{n['name']}: held out {len(val)} samples: input {pi:.2f} dB -> output {po:.2f} dB ({po - pi:+.2f})", logf)
     json.dump(report, open(os.path.join(a.out, "report.json"), "w"), indent=1)
     log(f"done: {step} steps x {a.batch} = {step * a.batch} patches per model from {len(data)} samples", logf)
