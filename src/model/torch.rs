@@ -2,7 +2,13 @@
 //! and `Shallow(width)`, both ways (the inverse derived from burn's names). `pipeline export` writes them; `--model` reads them back (a
 //! model fine-tuned in PyTorch and saved with `safetensors.torch.save_file`).
 
+use crate::model::weights::WeightsError;
 use crate::{Error, Result};
+
+/// A model file's error, naming it.
+fn bad(name: &str) -> impl Fn(WeightsError) -> Error + '_ {
+    move |e| Error::format(std::path::Path::new(name))(e)
+}
 
 pub use crate::model::weights::torch_name;
 
@@ -15,11 +21,11 @@ pub(crate) struct Entry {
 }
 
 pub(crate) fn read_safetensors(bytes: &[u8], name: &str) -> Result<(Vec<Entry>, serde_json::Value)> {
-    let bad = |m: &str| Error::File { path: name.into(), why: m.into() };
-    let n = u64::from_le_bytes(bytes.get(..8).ok_or_else(|| bad("truncated"))?.try_into().expect("8 bytes")) as usize;
+    let bad = bad(name);
+    let n = u64::from_le_bytes(bytes.get(..8).ok_or_else(|| bad(WeightsError::NoHeader))?.try_into().expect("8 bytes")) as usize;
     let header: serde_json::Map<String, serde_json::Value> =
-        serde_json::from_slice(bytes.get(8..8 + n).ok_or_else(|| bad("truncated header"))?)
-            .map_err(|e| bad(&format!("bad header ({e})")))?;
+        serde_json::from_slice(bytes.get(8..8 + n).ok_or_else(|| bad(WeightsError::TruncatedHeader))?)
+            .map_err(|e| bad(WeightsError::Header(e)))?;
     let data = &bytes[8 + n..];
     let mut meta = serde_json::Value::Null;
     let mut out = Vec::new();
@@ -31,10 +37,10 @@ pub(crate) fn read_safetensors(bytes: &[u8], name: &str) -> Result<(Vec<Entry>, 
         let off = &v["data_offsets"];
         let (a, b) = (off[0].as_u64().unwrap_or(0) as usize, off[1].as_u64().unwrap_or(0) as usize);
         out.push(Entry {
-            name: k,
             dtype: v["dtype"].as_str().unwrap_or("").into(),
             shape: v["shape"].as_array().map(|s| s.iter().filter_map(|d| d.as_u64().map(|d| d as usize)).collect()).unwrap_or_default(),
-            data: data.get(a..b).ok_or_else(|| bad("tensor data out of range"))?.to_vec(),
+            data: data.get(a..b).ok_or_else(|| bad(WeightsError::OutOfRange { key: k.clone() }))?.to_vec(),
+            name: k,
         });
     }
     Ok((out, meta))
@@ -91,7 +97,8 @@ pub fn widen(bytes: &[u8], name: &str) -> Result<Option<Vec<u8>>> {
             }
         };
         if e.data.len() % 2 != 0 {
-            return Err(Error::File { path: name.into(), why: format!("{}: {} bytes of {}", e.name, e.data.len(), e.dtype) });
+            let values = e.shape.iter().product();
+            return Err(bad(name)(WeightsError::Size { key: e.name, bytes: e.data.len(), dtype: e.dtype, values }));
         }
         let data = e
             .data
@@ -125,7 +132,7 @@ pub fn narrow(bytes: &[u8], name: &str) -> Result<Vec<u8>> {
             let v = f32::from_le_bytes([c[0], c[1], c[2], c[3]]);
             let h = half::f16::from_f32(v);
             if h.is_infinite() && v.is_finite() {
-                return Err(Error::File { path: name.into(), why: format!("{} holds {v}, beyond F16's range", e.name) });
+                return Err(bad(name)(WeightsError::F16Range { key: e.name, value: v }));
             }
             data.extend_from_slice(&h.to_bits().to_le_bytes());
         }
@@ -144,7 +151,7 @@ pub fn to_torch(bytes: &[u8], name: &str) -> Result<(Vec<(String, Vec<usize>, St
     let (entries, meta) = read_safetensors(bytes, name)?;
     let mut out = Vec::new();
     for e in entries {
-        let t = torch_name(&e.name).ok_or_else(|| Error::File { path: name.into(), why: format!("{} has no PyTorch name", e.name) })?;
+        let t = torch_name(&e.name).ok_or_else(|| bad(name)(WeightsError::NoTorchName { key: e.name.clone() }))?;
         if t.ends_with(".running_var") {
             let nbt = t.trim_end_matches("running_var").to_string() + "num_batches_tracked";
             out.push(Entry { name: nbt, dtype: "I64".into(), shape: vec![], data: 0i64.to_le_bytes().to_vec() });
@@ -192,12 +199,7 @@ pub fn from_torch(bytes: &[u8], name: &str) -> Result<Option<Vec<u8>>> {
             }
             (Some(s), _) => crate::model::Arch::Unet { base: s[0] },
             (None, Some(s)) => crate::model::Arch::Shallow { width: s[0] },
-            _ => {
-                return Err(Error::File {
-                    path: name.into(),
-                    why: "neither a U-Net (inc.a.0.weight) nor a shallow model (blocks.0.0.weight)".into(),
-                })
-            }
+            _ => return Err(bad(name)(WeightsError::NotPipeline)),
         },
     };
     let names = burn_names(arch)?;
@@ -206,12 +208,9 @@ pub fn from_torch(bytes: &[u8], name: &str) -> Result<Option<Vec<u8>>> {
         if e.name.ends_with("num_batches_tracked") {
             continue;
         }
-        let b = names
-            .get(&e.name)
-            .cloned()
-            .ok_or_else(|| Error::File { path: name.into(), why: format!("{} is not a parameter of {}", e.name, arch.name()) })?;
+        let b = names.get(&e.name).cloned().ok_or_else(|| bad(name)(WeightsError::Extra { name: e.name.clone(), arch: arch.name() }))?;
         if !matches!(e.dtype.as_str(), "F32" | "F16" | "BF16") {
-            return Err(Error::File { path: name.into(), why: format!("{} is {}, expected F32 or F16", e.name, e.dtype) });
+            return Err(bad(name)(WeightsError::Dtype { key: e.name, dtype: e.dtype }));
         }
         out.push(Entry { name: b, ..e });
     }

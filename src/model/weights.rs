@@ -51,6 +51,10 @@ pub enum WeightsError {
     NotFinite { count: usize },
     #[error("{name} is not a parameter of {arch}")]
     Extra { name: String, arch: String },
+    #[error("{key} holds {value}, beyond F16's range")]
+    F16Range { key: String, value: f32 },
+    #[error("{key} has no PyTorch name: not a parameter of pipeline's networks")]
+    NoTorchName { key: String },
 }
 
 type Checked<T> = std::result::Result<T, WeightsError>;
