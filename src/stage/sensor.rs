@@ -131,9 +131,9 @@ impl Transform for SensorStage {
         // Beside what came before (the highlights' gain, say).
         let mut capture = s.capture.as_deref().and_then(|c| serde_json::from_str(c).ok()).unwrap_or_else(|| serde_json::json!({}));
         capture["sensor"] = serde_json::json!({
-                "full_well": sensor.full_well, "read_noise": sensor.read_noise, "iso": iso, "gain": sensor.gain,
-                "bayer": self.cfg.bayer, "demosaic": self.cfg.bayer.map(|_| self.cfg.demosaic),
-                "response": self.cfg.response.describe(s.curve),
+            "full_well": sensor.full_well, "read_noise": sensor.read_noise, "iso": iso, "gain": sensor.gain,
+            "bayer": self.cfg.bayer, "demosaic": self.cfg.bayer.map(|_| self.cfg.demosaic),
+            "response": self.cfg.response.describe(s.curve),
         });
         s.capture = Some(capture.to_string().into());
         out.send(Item::Sample(s));
