@@ -106,8 +106,7 @@ pub fn content_hash(resolved: &toml::Table) -> String {
 mod tests {
     #[test]
     fn the_content_hash_follows_a_measured_stack_by_its_bytes_not_its_name() {
-        let d = std::env::temp_dir().join(format!("pipeline-hash-{}", std::process::id()));
-        std::fs::create_dir_all(&d).unwrap();
+        let d = crate::io::paths::scratch_dir("hash");
         let table = |p: &std::path::Path| -> toml::Table {
             toml::from_str(&format!("seed = 1\n[transforms.blur.camera]\ntype = \"measured\"\npsf_path = {:?}\n", p.to_str().unwrap()))
                 .unwrap()

@@ -5,6 +5,8 @@
 //! colour to the bilinear estimate, so edges keep their colour better). Borders are mirrored
 //! inside the patch; `(x0, y0)` places the patch on the frame's colour filter array.
 
+use crate::optics::fft::reflect;
+
 /// The colour of each site of a 2x2 Bayer tile, in reading order (0 R, 1 G, 2 B).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -38,25 +40,12 @@ pub enum Demosaic {
     Malvar,
 }
 
-/// A mirrored index inside `0..n`.
-fn mirror(v: isize, n: usize) -> usize {
-    let n = n as isize;
-    let v = if v < 0 {
-        -v
-    } else if v >= n {
-        2 * n - 2 - v
-    } else {
-        v
-    };
-    v.clamp(0, n - 1) as usize
-}
-
 /// Bilinear demosaicing: each missing colour is the mean of the nearest sites of that colour (the
 /// 2 or 4 neighbours), borders mirrored inside the patch. `(x0, y0)` places the patch on the
 /// frame's colour filter array.
 pub fn demosaic_bilinear(raw: &[f32], w: usize, h: usize, (x0, y0): (usize, usize), b: Bayer) -> [Vec<f32>; 3] {
     let at = |x: isize, y: isize| {
-        let (x, y) = (mirror(x, w), mirror(y, h));
+        let (x, y) = (reflect(x, w), reflect(y, h));
         (raw[y * w + x], b.colour(x0 + x, y0 + y))
     };
     let mut out: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0; w * h]);
@@ -108,8 +97,8 @@ const DIAGONAL: [(isize, isize, f32); 9] =
 
 /// Malvar-He-Cutler demosaicing; outputs clamped to [0, 1] (the filters overshoot at edges).
 pub fn demosaic_malvar(raw: &[f32], w: usize, h: usize, (x0, y0): (usize, usize), b: Bayer) -> [Vec<f32>; 3] {
-    let at = |x: isize, y: isize| raw[mirror(y, h) * w + mirror(x, w)];
-    let colour = |x: isize, y: isize| b.colour(x0 + mirror(x, w), y0 + mirror(y, h));
+    let at = |x: isize, y: isize| raw[reflect(y, h) * w + reflect(x, w)];
+    let colour = |x: isize, y: isize| b.colour(x0 + reflect(x, w), y0 + reflect(y, h));
     let apply = |x: isize, y: isize, k: &[(isize, isize, f32)], transpose: bool| {
         k.iter().map(|&(dx, dy, wt)| if transpose { wt * at(x + dy, y + dx) } else { wt * at(x + dx, y + dy) }).sum::<f32>() / 8.0
     };

@@ -139,8 +139,7 @@ mod tests {
 
     #[test]
     fn a_log_gives_the_shifts_of_a_window_inside_one_segment_only() {
-        let dir = std::env::temp_dir().join(format!("pipeline-truth-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = crate::io::paths::scratch_dir("truth");
         let video = dir.join("clip.mkv");
         let seg = |k: usize| -> String {
             let shift: Vec<[f64; 2]> = (0..5).map(|j| [(j as f64 - 2.0) * (k + 1) as f64, 0.5 * j as f64]).collect();

@@ -242,8 +242,7 @@ mod tests {
 
     #[test]
     fn failed_write_leaves_the_old_file_and_no_temporary() {
-        let dir = std::env::temp_dir().join(format!("pipeline-atomic-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = crate::io::paths::scratch_dir("atomic");
         let p = dir.join("a.bin");
         write_atomic(&p, |w| w.write_all(b"old")).unwrap();
         let err = write_atomic(&p, |w| {
@@ -308,8 +307,7 @@ mod tests {
 
     #[test]
     fn a_sweep_for_named_targets_removes_only_their_temporaries() {
-        let dir = std::env::temp_dir().join(format!("pipeline-stale-for-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = crate::io::paths::scratch_dir("stale-for");
         let mut child = std::process::Command::new("true").spawn().unwrap();
         let dead = child.id();
         child.wait().unwrap();

@@ -177,14 +177,22 @@ fn glob_match(pat: &str, s: &str) -> bool {
     go(&p, &s)
 }
 
+/// A scratch folder for a unit test, made if missing: `pipeline-{name}-{pid}` under the system's
+/// temporary folder (the test removes it).
+#[cfg(test)]
+pub(crate) fn scratch_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("pipeline-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
     fn names_from_trusted_files_stay_inside_their_folder() {
-        let dir = std::env::temp_dir().join(format!("pipeline-inside-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
+        let dir = crate::io::paths::scratch_dir("inside");
         let from = dir.join("latest.json");
         assert_eq!(inside(&dir, "model-0000001.safetensors", &from, "model").unwrap(), dir.join("model-0000001.safetensors"));
         for bad in ["../victim.txt", "/etc/shadow", "a/b.tar", "..", ".", "", "./x.tar"] {

@@ -102,39 +102,47 @@ impl Response {
     /// What `key.json` records: the curve's name (the input's for `input`), `gamma G` or
     /// `table of N`.
     pub fn describe(&self, input: Curve) -> String {
-        match self {
-            Response::Named(n) => self.curve(input).map_or_else(|| format!("{n:?}"), |c| c.name().to_string()),
-            Response::Gamma { gamma } => format!("gamma {gamma}"),
-            Response::Table(t) => format!("table of {}", t.len()),
+        match self.resolve(input) {
+            Resolved::Curve(c) => c.name().to_string(),
+            Resolved::Gamma(g) => format!("gamma {g}"),
+            Resolved::Table(t) => format!("table of {}", t.len()),
         }
     }
 
-    /// The curve a named response is (the input's for `input`).
-    fn curve(&self, input: Curve) -> Option<Curve> {
+    /// The response for frames of the curve `input`: a named one as its curve.
+    fn resolve(&self, input: Curve) -> Resolved<'_> {
         match self {
-            Response::Named(ResponseName::Input) => Some(input),
-            Response::Named(ResponseName::Srgb) => Some(Curve::Srgb),
-            Response::Named(ResponseName::Gamma22) => Some(Curve::Gamma22),
-            Response::Named(ResponseName::Identity) => Some(Curve::Identity),
-            _ => None,
+            Response::Named(ResponseName::Input) => Resolved::Curve(input),
+            Response::Named(ResponseName::Srgb) => Resolved::Curve(Curve::Srgb),
+            Response::Named(ResponseName::Gamma22) => Resolved::Curve(Curve::Gamma22),
+            Response::Named(ResponseName::Identity) => Resolved::Curve(Curve::Identity),
+            Response::Gamma { gamma } => Resolved::Gamma(*gamma),
+            Response::Table(t) => Resolved::Table(t),
         }
     }
 
     /// The encoder of this response for frames of the curve `input`.
     pub fn encoder(&self, input: Curve) -> Encoder {
-        if let Some(c) = self.curve(input) {
-            return Encoder::new(c);
-        }
-        match self.clone() {
-            Response::Gamma { gamma } => Encoder::from_fn(move |v| v.clamp(0.0, 1.0).powf(1.0 / gamma)),
-            Response::Table(t) => Encoder::from_fn(move |v| {
-                let x = v.clamp(0.0, 1.0) * (t.len() - 1) as f64;
-                let i = (x as usize).min(t.len() - 2);
-                t[i] + (x - i as f64) * (t[i + 1] - t[i])
-            }),
-            Response::Named(_) => unreachable!("a named response is a curve"),
+        match self.resolve(input) {
+            Resolved::Curve(c) => Encoder::new(c),
+            Resolved::Gamma(gamma) => Encoder::from_fn(move |v| v.clamp(0.0, 1.0).powf(1.0 / gamma)),
+            Resolved::Table(t) => {
+                let t = t.to_vec();
+                Encoder::from_fn(move |v| {
+                    let x = v.clamp(0.0, 1.0) * (t.len() - 1) as f64;
+                    let i = (x as usize).min(t.len() - 2);
+                    t[i] + (x - i as f64) * (t[i + 1] - t[i])
+                })
+            }
         }
     }
+}
+
+/// A [`Response`] with `input` resolved.
+enum Resolved<'a> {
+    Curve(Curve),
+    Gamma(f64),
+    Table(&'a [f64]),
 }
 
 /// Fast `encode` through a table of 65536 intervals with linear interpolation (exact below

@@ -49,8 +49,7 @@ fn the_loss_curve_carries_its_running_mean() {
 
 #[test]
 fn a_model_with_non_finite_weights_is_refused_by_name() {
-    let dir = std::env::temp_dir().join(format!("pipeline-nan-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
+    let dir = crate::io::paths::scratch_dir("nan");
     let cfg = tiny_config();
     let dev = Device::flex();
     let net = Net::seeded(cfg.model, &dev, 1);
