@@ -374,7 +374,11 @@ fn the_realistic_capture_chain_is_seeded_recorded_and_noisier_at_high_iso() {
     let a = run_with("realistic_a", &[]);
     let b = run_with("realistic_b", &[]);
     assert_eq!(a, b, "the same seed gives the same bytes");
-    let json: serde_json::Value = serde_json::from_slice(&a.iter().find(|(n, _)| n.ends_with(".json")).unwrap().1).unwrap();
+    // The first sample's key.json.
+    let key_json = |m: &[(String, Vec<u8>)]| -> serde_json::Value {
+        serde_json::from_slice(&m.iter().find(|(n, _)| n.ends_with(".json")).unwrap().1).unwrap()
+    };
+    let json = key_json(&a);
     let s = &json["capture"]["sensor"];
     assert_eq!(s["bayer"], "rggb");
     assert!((100.0..=1600.0).contains(&s["iso"].as_f64().unwrap()), "{s}");
@@ -396,8 +400,7 @@ fn the_realistic_capture_chain_is_seeded_recorded_and_noisier_at_high_iso() {
     for (name, response, said) in [("response_gamma", "{gamma = 1.0}", "gamma 1"), ("response_table", "[0.0, 1.0]", "table of 2")] {
         let m = with(name, response);
         assert_eq!(lq(&m), lq(&ident), "{response}");
-        let json: serde_json::Value = serde_json::from_slice(&m.iter().find(|(n, _)| n.ends_with(".json")).unwrap().1).unwrap();
-        assert_eq!(json["capture"]["sensor"]["response"], said);
+        assert_eq!(key_json(&m)["capture"]["sensor"]["response"], said);
     }
     assert!(mse(&lq(&ident), &low) > 4.0 * mse(&low, &low2), "the response changes the capture");
     // Highlights made bright again: the capture gains light (the streaks of the clipped pixels),
@@ -410,7 +413,7 @@ fn the_realistic_capture_chain_is_seeded_recorded_and_noisier_at_high_iso() {
     assert!(sum(&bright, ".lq.png").iter().zip(sum(&base, ".lq.png")).all(|(a, b)| *a >= b));
     assert!(sum(&bright, ".lq.png").iter().sum::<u64>() > sum(&base, ".lq.png").iter().sum::<u64>());
     assert_eq!(sum(&bright, ".gt.png"), sum(&base, ".gt.png"));
-    let json: serde_json::Value = serde_json::from_slice(&bright.iter().find(|(n, _)| n.ends_with(".json")).unwrap().1).unwrap();
+    let json = key_json(&bright);
     assert_eq!(json["capture"]["highlights"]["gain"], 4.0);
     assert_eq!(json["capture"]["sensor"]["iso"].as_f64().map(f64::round), Some(100.0));
     // A response that decreases is refused by its key.
