@@ -16,6 +16,10 @@ pub enum Error {
     /// that does not parse or does not fit), named, with why.
     #[error("{}: {why}", path.display())]
     File { path: PathBuf, why: String },
+    /// A file a library refused (burn's record of a network or optimizer, a manifest's JSON):
+    /// what the file was wanted as, and the library's error, kept as the source.
+    #[error("{}: {why}", path.display())]
+    Unloadable { path: PathBuf, why: String, source: Box<dyn std::error::Error + Send + Sync> },
     /// A file one of the format readers refused (PNG, tar, `.npy`, safetensors, JSON), named (a
     /// shard's member as `shard.tar/member`);
     /// the reader's own error is kept, typed, in `cause` and is part of the message (as in `Io`).

@@ -35,8 +35,11 @@ impl MotionLog {
         };
         let mut log = MotionLog::default();
         for (i, line) in text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty()) {
-            let v: serde_json::Value =
-                serde_json::from_str(line).map_err(|e| Error::File { path: p.clone(), why: format!("line {}: {e}", i + 1) })?;
+            let v: serde_json::Value = serde_json::from_str(line).map_err(|e| Error::Unloadable {
+                path: p.clone(),
+                why: format!("line {}", i + 1),
+                source: Box::new(e),
+            })?;
             let frame =
                 v["window"].as_u64().ok_or_else(|| Error::File { path: p.clone(), why: format!("line {}: no `window` index", i + 1) })?
                     as usize;

@@ -64,7 +64,7 @@ pub fn save_model(path: &Path, model: &Net, arch: &Arch, seed: u64, step: usize)
             serde_json::to_string(&c.0).expect("json")
         })
         .overwrite(true);
-    model.save_into(&mut store).map_err(|e| Error::File { path: path.to_path_buf(), why: e.to_string() })?;
+    model.save_into(&mut store).map_err(|e| Error::Serialise { what: path.display().to_string(), source: Box::new(e) })?;
     // burn writes the file owner-only (0600); a checkpoint is meant to be shared like any output.
     {
         use std::os::unix::fs::PermissionsExt;
@@ -95,9 +95,11 @@ pub fn load_model_bytes(bytes: &[u8], name: &str, device: &Device) -> Result<(Ne
     let arch = read_arch(&bytes).map_err(Error::format(path))?;
     let mut net = Net::new(arch, device);
     let mut store = SafetensorsStore::from_bytes(Some(bytes));
-    let r = net
-        .load_from(&mut store)
-        .map_err(|e| Error::File { path: path.to_path_buf(), why: format!("not loadable as {} ({e})", arch.name()) })?;
+    let r = net.load_from(&mut store).map_err(|e| Error::Unloadable {
+        path: path.to_path_buf(),
+        why: format!("not loadable as {}", arch.name()),
+        source: Box::new(e),
+    })?;
     if !r.errors.is_empty() || !r.missing.is_empty() {
         return Err(Error::File {
             path: path.to_path_buf(),

@@ -264,8 +264,11 @@ impl Manifest {
         let p = dir.join(name);
         match std::fs::read(&p) {
             Ok(b) => {
-                let m: Manifest = serde_json::from_slice(&b)
-                    .map_err(|e| crate::Error::File { path: p.clone(), why: format!("not a pipeline manifest ({e})") })?;
+                let m: Manifest = serde_json::from_slice(&b).map_err(|e| crate::Error::Unloadable {
+                    path: p.clone(),
+                    why: "not a pipeline manifest".into(),
+                    source: Box::new(e),
+                })?;
                 // Shard names are opened, sized and removed in `dir`: each must be a plain name
                 // there (a tampered manifest must not reach other files).
                 for (i, input) in m.inputs.iter().enumerate() {

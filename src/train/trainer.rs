@@ -177,7 +177,11 @@ fn engine(cfg: &TrainConfig, device: Device, model: Net, optim: Option<(PathBuf,
                 } else {
                     "a checkpoint of optim.engine = \"burn\" resumes with that engine"
                 };
-                Error::File { path: path.to_path_buf(), why: format!("{e} ({hint})") }
+                Error::Unloadable {
+                    path: path.to_path_buf(),
+                    why: format!("cannot resume the optimizer from it ({hint})"),
+                    source: Box::new(e),
+                }
             })?,
             None => Adam::default(),
         };
@@ -185,9 +189,10 @@ fn engine(cfg: &TrainConfig, device: Device, model: Net, optim: Option<(PathBuf,
     }
     let mut opt = AdamConfig::new().with_epsilon(cfg.optim.adam_epsilon as f32).init();
     if let Some((path, b)) = optim {
-        opt = opt.from_bytes(burn::tensor::Bytes::from_bytes_vec(b)).map_err(|e| Error::File {
+        opt = opt.from_bytes(burn::tensor::Bytes::from_bytes_vec(b)).map_err(|e| Error::Unloadable {
             path: path.to_path_buf(),
-            why: format!("{e:?} (a checkpoint of optim.engine = \"fast\" resumes with that engine)"),
+            why: "not a burn optimizer state (a checkpoint of optim.engine = \"fast\" resumes with that engine)".into(),
+            source: Box::new(e),
         })?;
     }
     Ok(Engine::Burn { device, model, optim: opt, huber: HuberLossConfig::new(cfg.optim.huber_delta as f32).init() })

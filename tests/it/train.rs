@@ -462,8 +462,12 @@ fn a_damaged_optimizer_file_is_called_damaged() {
     let optim = out.join("optim-0000003.bin");
     let bytes = std::fs::read(&optim).unwrap();
     std::fs::write(&optim, &bytes[..bytes.len() - 100]).unwrap();
-    let e = train(&config(&shards, &out, ""), &opts(Some(6), true)).expect_err("refused").to_string();
+    let err = train(&config(&shards, &out, ""), &opts(Some(6), true)).expect_err("refused");
+    let e = err.to_string();
     assert!(e.contains("optim-0000003.bin") && e.contains("damaged or truncated") && !e.contains("burn"), "{e}");
+    // The reader's own error is kept as the source, typed.
+    let cause = std::error::Error::source(&err).and_then(|c| c.downcast_ref::<pipeline::model::fast::AdamStateError>());
+    assert!(matches!(cause, Some(pipeline::model::fast::AdamStateError::Size { .. })), "{err:?}");
     std::fs::write(&optim, b"\x00\x01 not json\n").unwrap();
     let e = train(&config(&shards, &out, ""), &opts(Some(6), true)).expect_err("refused").to_string();
     assert!(e.contains("optim-0000003.bin") && e.contains("optim.engine = \"burn\""), "{e}");

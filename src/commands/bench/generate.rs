@@ -236,7 +236,7 @@ fn peak_in_child(clip: &std::path::Path, dir: &std::path::Path) -> crate::Result
     }
     let report = out.join("report.json");
     let text = std::fs::read_to_string(&report).map_err(|e| crate::Error::Io { path: report.clone(), cause: e })?;
-    let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| crate::Error::File { path: report.clone(), why: e.to_string() })?;
+    let v: serde_json::Value = serde_json::from_str(&text).map_err(crate::Error::format(&report))?;
     Ok(v["peak_rss_mb"].as_f64())
 }
 

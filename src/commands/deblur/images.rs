@@ -157,7 +157,7 @@ fn write_canvas(dst: &Path, ext: &str, w: usize, h: usize, canvas: &Canvas) -> R
             let codec = if ext.starts_with("tif") { Codec::Tiff } else { Codec::Jpeg };
             let tmp = temp_for(dst);
             let res = crate::io::video::write_image(&tmp, w, h, rgb, codec)
-                .map_err(|e| Error::File { path: dst.to_path_buf(), why: e.to_string() })
+                .map_err(Error::video(dst))
                 .and_then(|()| std::fs::rename(&tmp, dst).map_err(|e| Error::Io { path: dst.to_path_buf(), cause: e }));
             if res.is_err() {
                 let _ = std::fs::remove_file(&tmp);

@@ -55,5 +55,5 @@ use tensor::*;
 pub use kernels::{conv_backward_input, conv_backward_weight, conv_forward};
 pub use layers::{Conv, ConvBnAct};
 pub use net::FastNet;
-pub use optim::{huber, train_step, Adam};
+pub use optim::{huber, train_step, Adam, AdamStateError};
 pub use tensor::T4;

@@ -88,18 +88,18 @@ impl Adam {
         out
     }
 
-    pub fn from_bytes(b: &[u8]) -> Result<Adam, String> {
-        let nl = b.iter().position(|&c| c == b'\n').ok_or("no header line")?;
-        let head: serde_json::Value = serde_json::from_slice(&b[..nl]).map_err(|e| e.to_string())?;
+    pub fn from_bytes(b: &[u8]) -> Result<Adam, AdamStateError> {
+        let nl = b.iter().position(|&c| c == b'\n').ok_or(AdamStateError::NoHeader)?;
+        let head: serde_json::Value = serde_json::from_slice(&b[..nl])?;
         if head["format"] != "pipeline-adam-1" {
-            return Err(format!("not a pipeline Adam state (format {})", head["format"]));
+            return Err(AdamStateError::Format(head["format"].to_string()));
         }
-        let time = head["time"].as_i64().ok_or("no time")? as i32;
-        let lens: Vec<usize> = serde_json::from_value(head["lens"].clone()).map_err(|e| e.to_string())?;
+        let time = head["time"].as_i64().ok_or(AdamStateError::NoTime)? as i32;
+        let lens: Vec<usize> = serde_json::from_value(head["lens"].clone())?;
         let body = &b[nl + 1..];
-        let total: usize = lens.iter().sum();
-        if body.len() != total * 8 {
-            return Err(format!("{} bytes of moments, expected {}", body.len(), total * 8));
+        let total = lens.iter().try_fold(0usize, |a, &n| a.checked_add(n)).and_then(|t| t.checked_mul(8));
+        if total != Some(body.len()) {
+            return Err(AdamStateError::Size { got: body.len(), lens: lens.len() });
         }
         let mut floats = body.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]));
         let mut take = |n: usize| -> Vec<f32> { floats.by_ref().take(n).collect() };
@@ -107,4 +107,20 @@ impl Adam {
         let v = lens.iter().map(|&n| take(n)).collect();
         Ok(Adam { time, m, v })
     }
+}
+
+/// Why bytes are not a fast-engine Adam state (`optim.state` of a checkpoint).
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum AdamStateError {
+    #[error("no header line")]
+    NoHeader,
+    #[error("header: {0}")]
+    Json(#[from] serde_json::Error),
+    #[error("not a pipeline Adam state (format {0})")]
+    Format(String),
+    #[error("no time in the header")]
+    NoTime,
+    #[error("{got} bytes of moments, not what the header's {lens} lengths need")]
+    Size { got: usize, lens: usize },
 }
