@@ -1,7 +1,7 @@
-//! What flows between stages.
+//! Frames and inputs: what sources make and stages read (the channel message is [`crate::item::Item`]; a
+//! window's result, [`crate::sample::Sample`]).
 
 use crate::optics::transfer::Curve;
-use crate::optics::CameraKind;
 use std::sync::Arc;
 
 /// One frame. Sources make encoded frames (`curve: None`); `linearize` tags them with the
@@ -324,68 +324,6 @@ pub struct InputInfo {
     pub pixel_format: String,
 }
 
-/// An 8-bit or linear image of one sample: planar f32 linear, or interleaved 8-bit encoded.
-#[derive(Debug, Clone)]
-pub enum Img {
-    Linear([Vec<f32>; 3]),
-    Encoded8(Vec<u8>),
-}
-
-/// An (lq, gt) pair cut from a window at (x, y), `w x h` pixels.
-#[derive(Debug, Clone)]
-pub struct Pair {
-    /// Patch number within the window (None for a full frame).
-    pub patch: Option<u32>,
-    pub x: usize,
-    pub y: usize,
-    pub w: usize,
-    pub h: usize,
-    pub lq: Img,
-    pub gt: Img,
-    /// The sharp images at each of the sample's [`Sample::times`] (burst targets), in time
-    /// order; empty when the window has one target, `gt`, the middle sub-frame.
-    pub burst: Vec<Img>,
-}
-
-/// The coded-blur result of one window, with everything needed to reproduce it.
-#[derive(Debug, Clone)]
-pub struct Sample {
-    pub input: Arc<Input>,
-    pub window: u64,
-    pub first_frame: u64,
-    pub frames: usize,
-    pub camera: CameraKind,
-    pub psi: Vec<f64>,
-    pub curve: Curve,
-    /// Noise sigma on the 0-255 scale as applied (after the camera's light loss), None before noise.
-    pub sigma: Option<f64>,
-    /// Share of a conventional camera's light this camera collects (0.5 for the flutter code);
-    /// the noise stage divides sigma by it, as brightening the image to the same level would.
-    pub light_throughput: f64,
-    pub frame_width: usize,
-    pub frame_height: usize,
-    /// True when the pairs were cut before blurring (patch mode).
-    pub cropped: bool,
-    /// The middle frame's motion label ([`Frame::motion`]).
-    pub motion: Option<Arc<str>>,
-    /// What the capture stage drew (the `sensor` stage's ISO and constants), as JSON.
-    pub capture: Option<Arc<str>>,
-    /// The times of the burst targets ([`Pair::burst`]) as fractions of the exposure, in (0, 1):
-    /// `(k + 0.5) / K`; empty without a burst.
-    pub times: Vec<f64>,
-    pub pairs: Vec<Pair>,
-}
-
-/// A message on a channel between stages.
-#[derive(Debug, Clone)]
-pub enum Item {
-    Begin(Arc<Input>, InputInfo),
-    Frame(Arc<Input>, u64, Arc<Frame>),
-    Sample(Box<Sample>),
-    /// The input is done: Ok, or the reason it failed (its outputs are discarded).
-    End(Arc<Input>, Result<(), Arc<InputError>>),
-}
-
 /// Why one input failed (its outputs are discarded; the run goes on with the others). Each
 /// names the input.
 #[derive(Debug, thiserror::Error)]
@@ -408,7 +346,7 @@ pub enum InputError {
 }
 
 impl InputError {
-    /// As an [`Item::End`] carries it.
+    /// As an [`crate::item::Item::End`] carries it.
     pub fn end(self) -> Result<(), Arc<InputError>> {
         Err(Arc::new(self))
     }

@@ -50,6 +50,7 @@ pub mod frame;
 pub mod graph;
 pub mod imaging;
 pub mod io;
+pub mod item;
 pub mod metrics;
 #[cfg(feature = "infer")]
 pub mod model;

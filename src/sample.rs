@@ -1,15 +1,79 @@
-//! The sample format every sink writes and the Python dataset yields: a sample's key
+//! A window's result ([`Sample`]: its pairs of blurred and sharp images) and the sample format every sink writes and the Python dataset yields: a sample's key
 //! (`{input}_{window}[_{patch}]`), its per-sample JSON, and the hash of the settings that decide
 //! the samples' content (kept in the manifest to tell a finished input from one to redo).
 
-use crate::frame::{Img, Pair, Sample};
+use crate::frame::Input;
 use crate::optics::transfer::Curve;
+use crate::optics::CameraKind;
 use serde::Serialize;
+use std::sync::Arc;
+
+/// An 8-bit or linear image of one sample: planar f32 linear, or interleaved 8-bit encoded.
+#[derive(Debug, Clone)]
+pub enum Img {
+    Linear([Vec<f32>; 3]),
+    Encoded8(Vec<u8>),
+}
+
+impl Img {
+    /// Interleaved 8-bit encoded RGB (linear light quantised through `curve`, without noise).
+    pub fn rgb8(&self, w: usize, h: usize, curve: Curve) -> Vec<u8> {
+        match self {
+            Img::Encoded8(v) => v.clone(),
+            Img::Linear(p) => crate::imaging::to_8bit(p, w, h, curve),
+        }
+    }
+}
+
+/// An (lq, gt) pair cut from a window at (x, y), `w x h` pixels.
+#[derive(Debug, Clone)]
+pub struct Pair {
+    /// Patch number within the window (None for a full frame).
+    pub patch: Option<u32>,
+    pub x: usize,
+    pub y: usize,
+    pub w: usize,
+    pub h: usize,
+    pub lq: Img,
+    pub gt: Img,
+    /// The sharp images at each of the sample's [`Sample::times`] (burst targets), in time
+    /// order; empty when the window has one target, `gt`, the middle sub-frame.
+    pub burst: Vec<Img>,
+}
+
+/// The coded-blur result of one window, with everything needed to reproduce it.
+#[derive(Debug, Clone)]
+pub struct Sample {
+    pub input: Arc<Input>,
+    pub window: u64,
+    pub first_frame: u64,
+    pub frames: usize,
+    pub camera: CameraKind,
+    pub psi: Vec<f64>,
+    pub curve: Curve,
+    /// Noise sigma on the 0-255 scale as applied (after the camera's light loss), None before noise.
+    pub sigma: Option<f64>,
+    /// Share of a conventional camera's light this camera collects (0.5 for the flutter code);
+    /// the noise stage divides sigma by it, as brightening the image to the same level would.
+    pub light_throughput: f64,
+    pub frame_width: usize,
+    pub frame_height: usize,
+    /// True when the pairs were cut before blurring (patch mode).
+    pub cropped: bool,
+    /// The middle frame's motion label ([`crate::frame::Frame::motion`]).
+    pub motion: Option<Arc<str>>,
+    /// What the capture stage drew (the `sensor` stage's ISO and constants), as JSON.
+    pub capture: Option<Arc<str>>,
+    /// The times of the burst targets ([`Pair::burst`]) as fractions of the exposure, in (0, 1):
+    /// `(k + 0.5) / K`; empty without a burst.
+    pub times: Vec<f64>,
+    pub pairs: Vec<Pair>,
+}
 
 /// A sample image as PNG: linear light quantised to 8 bits through `curve`, without noise.
 pub fn png_bytes(img: &Img, w: usize, h: usize, curve: Curve) -> Vec<u8> {
     let mut buf = Vec::new();
-    crate::io::png::write_rgb8(&mut buf, w, h, &crate::imaging::img_rgb8(img, w, h, curve)).expect("png into memory");
+    crate::io::png::write_rgb8(&mut buf, w, h, &img.rgb8(w, h, curve)).expect("png into memory");
     buf
 }
 

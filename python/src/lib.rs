@@ -6,9 +6,9 @@
 //! - `psf`: the PSF stack `pipeline psf --out x.npy` writes.
 
 use numpy::{IntoPyArray, PyArray3, PyArray4, PyArrayMethods, PyReadonlyArray3, PyUntypedArrayMethods};
-use pipeline::frame::{Pair, Sample};
 use pipeline::graph::{Next, SampleStream};
 use pipeline::optics::request::PsfSpec;
+use pipeline::sample::{Img, Pair, Sample};
 use pyo3::exceptions::{PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use std::collections::VecDeque;
@@ -91,7 +91,7 @@ fn planar(rgb: &[u8], w: usize, h: usize) -> Vec<u8> {
 }
 
 fn ready(s: &Sample, p: &Pair) -> Ready {
-    let rgb = |img| pipeline::imaging::img_rgb8(img, p.w, p.h, s.curve);
+    let rgb = |img| Img::rgb8(img, p.w, p.h, s.curve);
     let (key, meta) = (pipeline::sample::sample_key(s, p), pipeline::sample::meta_json(s, p));
     Ready {
         w: p.w,

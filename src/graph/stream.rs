@@ -3,7 +3,7 @@
 use super::threads::{build, start, FirstError};
 use super::{list_inputs, StageReport};
 use crate::config::Plan;
-use crate::frame::Item;
+use crate::item::Item;
 use crate::sample::content_hash;
 use crate::stage::Counters;
 use crate::{Error, Result};
@@ -25,7 +25,7 @@ pub struct SampleStream {
 
 /// What [`SampleStream::next`] found.
 pub enum Next {
-    Sample(Box<crate::frame::Sample>),
+    Sample(Box<crate::sample::Sample>),
     /// An input failed (its path, and why: an error that names it); its samples already given
     /// are not taken back.
     Failed(String, std::sync::Arc<crate::frame::InputError>),

@@ -3,7 +3,8 @@
 
 use super::StageReport;
 use crate::config::Plan;
-use crate::frame::{Input, Item};
+use crate::frame::Input;
+use crate::item::Item;
 use crate::stage::{BuildContext, Built, Counters, Emit, Sink, Source, StageError, Transform};
 use crate::{Error, Result};
 use crossbeam_channel::{bounded, Receiver, RecvTimeoutError};

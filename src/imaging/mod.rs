@@ -60,15 +60,6 @@ pub fn to_8bit(planes: &[Vec<f32>; 3], w: usize, h: usize, curve: Curve) -> Vec<
     noise::quantise(planes, w, h, 0, 0, &Encoder::new(curve), 0.0, 0)
 }
 
-/// Interleaved 8-bit encoded RGB of a sample's image (linear light quantised through `curve`,
-/// without noise).
-pub fn img_rgb8(img: &crate::frame::Img, w: usize, h: usize, curve: Curve) -> Vec<u8> {
-    match img {
-        crate::frame::Img::Encoded8(v) => v.clone(),
-        crate::frame::Img::Linear(p) => to_8bit(p, w, h, curve),
-    }
-}
-
 /// Planar linear light of interleaved 8-bit RGB encoded with `curve`.
 pub fn from_8bit(rgb: &[u8], w: usize, h: usize, curve: Curve) -> [Vec<f32>; 3] {
     let t: Vec<f32> = (0..256).map(|v| curve.to_linear(v as f64 / 255.0) as f32).collect();

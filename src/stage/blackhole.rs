@@ -3,7 +3,7 @@
 use super::shards::default_dir;
 use super::{BuildContext, Built, Counters, Sink, StageConfig};
 use crate::checks::ConfigError;
-use crate::frame::Item;
+use crate::item::Item;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 

@@ -18,7 +18,8 @@ pub fn slow_footage(path: &std::path::Path, fps: f64) -> String {
 use super::input::{check_size, VIDEO_EXTS};
 use super::{BuildContext, Built, Counters, Emit, InputList, Needs, Source, StageConfig};
 use crate::checks::ConfigError;
-use crate::frame::{Input, InputError, Item};
+use crate::frame::{Input, InputError};
+use crate::item::Item;
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::sync::atomic::Ordering;

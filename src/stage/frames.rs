@@ -5,9 +5,10 @@
 use super::shards::default_dir;
 use super::{BuildContext, Built, Counters, Sink, StageConfig};
 use crate::checks::ConfigError;
-use crate::frame::{Img, Item, Pair, Sample};
 use crate::io::{exr, write_atomic};
+use crate::item::Item;
 use crate::sample::png_bytes;
+use crate::sample::{Img, Pair, Sample};
 use serde::{Deserialize, Serialize};
 use std::path::PathBuf;
 use std::sync::Arc;

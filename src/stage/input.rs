@@ -2,7 +2,8 @@
 //! helpers shared by the sources.
 
 use super::{Counters, Emit};
-use crate::frame::{Frame, Input, InputError, InputInfo, Item};
+use crate::frame::{Frame, Input, InputError, InputInfo};
+use crate::item::Item;
 use std::path::PathBuf;
 use std::sync::atomic::Ordering;
 use std::sync::Arc;

@@ -6,7 +6,8 @@
 
 use super::{BuildContext, Built, Emit, StageConfig, StageResult, Transform};
 use crate::checks::ConfigError;
-use crate::frame::{Frame, Highlights, Item};
+use crate::frame::{Frame, Highlights};
+use crate::item::Item;
 use crate::optics::transfer::Curve;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;

@@ -24,7 +24,8 @@ pub mod trainer;
 pub use input::{input_key, InputList, Needs};
 
 use crate::checks::ConfigError;
-use crate::frame::{Input, Item};
+use crate::frame::Input;
+use crate::item::Item;
 use crossbeam_channel::Sender;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};

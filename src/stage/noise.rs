@@ -4,10 +4,11 @@
 use super::{BuildContext, Built, Emit, StageConfig, StageResult, Transform};
 use crate::checks::Checker;
 use crate::checks::ConfigError;
-use crate::frame::{Img, Item};
 use crate::imaging::noise::quantise;
+use crate::item::Item;
 use crate::optics::transfer::{Curve, Encoder};
 use crate::rng::{hash, hash_str, unit};
+use crate::sample::Img;
 use serde::{Deserialize, Serialize};
 
 /// Noise sigma: fixed, or drawn per window from [low, high].

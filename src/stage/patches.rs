@@ -5,8 +5,10 @@
 use super::{BuildContext, Built, Emit, Needs, StageConfig, StageError, StageResult, Transform};
 use crate::checks::Checker;
 use crate::checks::ConfigError;
-use crate::frame::{Img, InputError, Item, Pair};
+use crate::frame::InputError;
+use crate::item::Item;
 use crate::rng::{hash, hash_str, Rng};
+use crate::sample::{Img, Pair};
 use serde::{Deserialize, Serialize};
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]

@@ -9,11 +9,12 @@
 
 use super::{BuildContext, Built, Emit, StageConfig, StageResult, Transform};
 use crate::checks::{Checker, ConfigError};
-use crate::frame::{Img, Item};
 use crate::imaging::noise::quantise;
 use crate::imaging::sensor::{Bayer, Sensor};
+use crate::item::Item;
 use crate::optics::transfer::{Curve, Encoder, Response};
 use crate::rng::{hash, hash_str, unit};
+use crate::sample::Img;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 

@@ -13,9 +13,11 @@
 use super::{BuildContext, Built, Completed, Counters, Sink, StageConfig};
 use crate::checks::Checker;
 use crate::checks::ConfigError;
-use crate::frame::{Input, InputInfo, Item, Pair, Sample};
+use crate::frame::{Input, InputInfo};
 use crate::io::{tar, write_atomic};
+use crate::item::Item;
 use crate::sample::{meta_json, png_bytes, sample_key};
+use crate::sample::{Pair, Sample};
 use serde::{Deserialize, Serialize};
 use std::fs::File;
 use std::io::{BufWriter, Write};

@@ -125,13 +125,14 @@ impl TrainerSink {
 }
 
 impl Sink for TrainerSink {
-    fn consume(&mut self, item: crate::frame::Item) -> Result<()> {
-        use crate::frame::{Img, Item};
+    fn consume(&mut self, item: crate::item::Item) -> Result<()> {
+        use crate::item::Item;
+        use crate::sample::Img;
         match item {
             Item::Sample(s) => {
                 let t = self.trainer.as_mut().expect("open");
                 for p in &s.pairs {
-                    let rgb = |img: &Img| crate::imaging::img_rgb8(img, p.w, p.h, s.curve);
+                    let rgb = |img: &Img| img.rgb8(p.w, p.h, s.curve);
                     let pair = Pair {
                         key: format!("{}_{:06}", s.input.key, s.window),
                         source: hash_str(&s.input.key),
