@@ -176,6 +176,19 @@ pub(super) fn bench_plan(mode: &str, clip: &std::path::Path, out: &std::path::Pa
     crate::config::plan(bench_table(mode, clip, out)?, &format!("bench ({mode})"))
 }
 
+/// The configurations `bench generate` times, each a row ([`bench_table`] reads the words).
+pub const MODES: [&str; 6] = [
+    "full frame",
+    "full frame, one plane (tile = 1048576)",
+    "full frame, conventional",
+    "patches",
+    "patches, through a sensor (pipelines/realistic.toml)",
+    "patches, clip twice as long",
+];
+
+#[cfg(feature = "ffmpeg")]
+const REALISTIC_TOML: &str = include_str!("../../../pipelines/realistic.toml");
+
 /// The configuration of [`bench_plan`], as a TOML table.
 #[cfg(feature = "ffmpeg")]
 fn bench_table(mode: &str, clip: &std::path::Path, out: &std::path::Path) -> crate::Result<toml::Table> {
@@ -198,7 +211,14 @@ fn bench_table(mode: &str, clip: &std::path::Path, out: &std::path::Path) -> cra
     if mode.contains("one plane") {
         sets.push("transforms.blur.tile=1048576".into());
     }
-    let mut table = crate::config::parse(crate::commands::generate::GENERATE_TOML, "pipelines/generate.toml (embedded)", &[])?;
+    // The realistic chain: patches read out by a sensor (shot and read noise, saturation, an
+    // RGGB mosaic demosaiced, the camera response) instead of AWGN.
+    let (text, origin) = if mode.contains("sensor") {
+        (REALISTIC_TOML, "pipelines/realistic.toml (embedded)")
+    } else {
+        (crate::commands::generate::GENERATE_TOML, "pipelines/generate.toml (embedded)")
+    };
+    let mut table = crate::config::parse(text, origin, &[])?;
     if mode.starts_with("full frame") {
         // Drop the patch keys that a noise stage does not have.
         if let Some(t) = table.get_mut("transforms").and_then(|t| t.get_mut("patches")).and_then(|p| p.as_table_mut()) {
@@ -261,13 +281,8 @@ pub fn generate(w: usize, h: usize, fps: u32, seconds: f64, repeats: usize) -> c
         dec.ratio_own_to_ffmpeg, dec.own_decode_swscale_fps_median, dec.ratio_swscale_to_ffmpeg
     );
     let mut rows = Vec::new();
-    for (mode, path) in [
-        ("full frame", &clip),
-        ("full frame, one plane (tile = 1048576)", &clip),
-        ("full frame, conventional", &clip),
-        ("patches", &clip),
-        ("patches, clip twice as long", &long),
-    ] {
+    for mode in MODES {
+        let path = if mode.contains("twice as long") { &long } else { &clip };
         rows.push(generate_row(mode, path, &dir, repeats, (ff_med, own_med))?);
     }
     let floor = fft_floor(w, h, 9, repeats.max(5), ff_med)?;
@@ -360,4 +375,24 @@ fn generate_row(
         ratio_to_own_decode: m / own_med,
         peak_rss_mb: peak,
     })
+}
+
+#[cfg(all(test, feature = "ffmpeg"))]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_mode_plans_the_chain_its_name_says() {
+        let dir = crate::io::paths::scratch_dir("bench_modes");
+        for mode in MODES {
+            let t = bench_table(mode, &dir.join("clip.mp4"), &dir.join("out")).unwrap();
+            let stage = |k: &str| t["transforms"].get(k).map(|s| s["type"].as_str().unwrap().to_string());
+            let sink = t["sinks"]["shards"]["type"].as_str().unwrap();
+            assert_eq!(sink == "blackhole", mode.starts_with("full frame"), "{mode}");
+            assert_eq!(stage("sensor").as_deref() == Some("sensor"), mode.contains("sensor"), "{mode}");
+            let camera = t["transforms"]["blur"]["camera"]["type"].as_str().unwrap();
+            assert_eq!(camera == "conventional", mode.contains("conventional"), "{mode}");
+            bench_plan(mode, &dir.join("clip.mp4"), &dir.join("out")).unwrap_or_else(|e| panic!("{mode}: {e}"));
+        }
+    }
 }
