@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The burst pair on the held-out test clips (docs/training-data.sh, STEP=test): `pipeline eval
+# The burst pair on the held-out test clips (scripts/training-data.sh, STEP=test): `pipeline eval
 # --burst` per camera and motion kind at N = 9 and sigma 3 (the issue's goals), each beside its
 # camera's single-frame U-Net 32 repeated for every sub-frame; then one table (docs/eval.md).
 #

@@ -15,7 +15,7 @@
 #                                                      # told the time on every decoder level
 #                                                      # ($RUNS/burst-unet32-film4-phase_coded)
 #
-# Needs the photographs of docs/training-data.sh (STEP=photos bash docs/training-data.sh).
+# Needs the photographs of scripts/training-data.sh (STEP=photos bash scripts/training-data.sh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 WHAT=${1:?shards, phase_coded or conventional}

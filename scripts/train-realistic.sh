@@ -12,7 +12,7 @@
 #   DATA=../data RUNS=../runs STEPS=500 bash scripts/train-realistic.sh conventional
 #   MIX=hand bash scripts/train-realistic.sh shards     # $DATA/shards/hand-*, runs in $RUNS/hand-unet32-*
 #
-# Needs the photographs of docs/training-data.sh (STEP=photos bash docs/training-data.sh).
+# Needs the photographs of scripts/training-data.sh (STEP=photos bash scripts/training-data.sh).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 WHAT=${1:?shards, phase_coded or conventional}

@@ -3,7 +3,7 @@
 # it out of git: `echo /.gpu/ >> .git/info/exclude`):
 #   pipeline    this repository's CLI built without FFmpeg (the `stills` source reads PNG itself),
 #               so it runs on any x86-64 Linux with glibc
-#   data.tar    the training crops that docs/training-data.sh prepared, as JPEG (quality 93, no
+#   data.tar    the training crops that scripts/training-data.sh prepared, as JPEG (quality 93, no
 #               chroma subsampling: a quarter of the PNG's size, so the whole set fits the 64 MiB a
 #               call may carry; run.sh turns them back into PNG there), and the cut-outs (PNG)
 #   init/shallow32-coded.safetensors   the shipped shallow model, which round 1 fine-tunes

@@ -1,6 +1,6 @@
 //! The true motion of a test clip, where it is known: `pipelines/test-clips.toml` renders clips
 //! from photographs with the `stills` source, and its `frames` sink writes each frame's motion
-//! (one JSON line per frame, `motion.jsonl`), which `docs/training-data.sh` keeps beside the clip
+//! (one JSON line per frame, `motion.jsonl`), which `scripts/training-data.sh` keeps beside the clip
 //! as `{clip}.motion.jsonl`. For a window moved as a whole by translation (still, pan, shake) that
 //! gives the window's true kernel per channel, and with it `pipeline eval`'s Wiener bound.
 

@@ -1,8 +1,8 @@
 """One picture of the same test windows through both cameras: blurred coded | coded model |
 blurred conventional | conventional model | sharp, a row per example, from the `examples/` that
-`pipeline eval` wrote for each camera (docs/eval-models.sh runs both on the same windows).
+`pipeline eval` wrote for each camera (scripts/eval-models.sh runs both on the same windows).
 
-    python3 docs/side-by-side.py ../ev/gpu2/shake-phase_coded ../ev/gpu2/shake-conventional docs/figures/shake-side-by-side.jpg [ROWS]
+    python3 scripts/side-by-side.py ../ev/gpu2/shake-phase_coded ../ev/gpu2/shake-conventional docs/figures/shake-side-by-side.jpg [ROWS]
 
 PSNR (RGB, dB) in the labels is recomputed on the 8-bit panels against the sharp panel. Needs
 NumPy and Pillow.

@@ -16,8 +16,8 @@ this is not, but it is what the measurements themselves carry when the motion is
 loses here, a network has to beat linear estimation by the difference to win. Circular convolution
 on 256 px crops, so the model is exact at the borders.
 
-    python3 docs/known-motion-bound.py [SKIMAGE_DATA_DIR]          # prints two Markdown tables
-    PSF_ARGS="--airy-radius-px 1.17" python3 docs/known-motion-bound.py   # other optics (flags of `pipeline psf`)
+    python3 scripts/known-motion-bound.py [SKIMAGE_DATA_DIR]          # prints two Markdown tables
+    PSF_ARGS="--airy-radius-px 1.17" python3 scripts/known-motion-bound.py   # other optics (flags of `pipeline psf`)
 
 Needs numpy and Pillow, ffmpeg-free; the held-out test photographs of docs/eval.md (Debian's
 mate-backgrounds, GPL-2+; scikit-image's coffee, CC0); target/release/pipeline (or $PIPELINE).
@@ -146,7 +146,7 @@ def main():
 
         sk = os.path.dirname(skimage.data.__file__)
     photos = [f"{BG}/Storm.jpg", f"{BG}/YellowFlower.jpg", f"{BG}/Wood.jpg", f"{sk}/coffee.png"]
-    # The pans of the test clips (docs/training-data.sh), px per frame, one per photo.
+    # The pans of the test clips (scripts/training-data.sh), px per frame, one per photo.
     clip_v = [(3, 1), (-2, 2), (5, 0), (1, -3)]
     rng = np.random.default_rng(0)
     P = {(c, n): spectra(psfs(c, n)) for c in CAMERAS for n in (7, 9, 11, 13)}

@@ -1,12 +1,12 @@
 #!/usr/bin/env bash
-# Scores a coded and a conventional model on the held-out test clips of docs/training-data.sh,
+# Scores a coded and a conventional model on the held-out test clips of scripts/training-data.sh,
 # one motion at a time (shake, objects, still, pan, rotate, zoom), and prints the summary tables
 # of docs/eval.md: per motion and camera, N = 7 to 13 averaged over sigma 0 to 3, input, model,
 # gain, the Wiener bound told the true kernel (where the motion has one), and the coded model's
 # output minus the conventional model's.
 #
-#   bash docs/eval-models.sh models/unet16-coded models/unet16-conventional ../ev/shipped
-#   KINDS="shake still" DATA=../data bash docs/eval-models.sh CODED CONV OUT
+#   bash scripts/eval-models.sh models/unet16-coded models/unet16-conventional ../ev/shipped
+#   KINDS="shake still" DATA=../data bash scripts/eval-models.sh CODED CONV OUT
 #
 # Each eval runs on one thread (RAYON_NUM_THREADS=1) beside whatever else runs; an existing
 # OUT/<kind>-<camera>/eval.json is kept, so a stopped run goes on where it stopped.

@@ -1,13 +1,13 @@
 #!/usr/bin/env bash
-# Trains the shipped models (models/README.md) on the shards docs/training-data.sh makes: a U-Net
+# Trains the shipped models (models/README.md) on the shards scripts/training-data.sh makes: a U-Net
 # per camera on identical data, seeds, order and steps (25,000 x 8 = 200,000 patches each), one
 # thread each at the lowest priority, so two run side by side on a 2-core machine. Each run
 # checkpoints every 250 steps; run the same command again to resume where it stopped.
 #
-#   bash docs/train-models.sh phase_coded 16        # or: conventional 16, phase_coded 32, ...
-#   DATA=../data RUNS=../runs STEPS=25000 bash docs/train-models.sh conventional 16
-#   bash docs/train-models.sh phase_coded shallow   # the shallow model (32 filters)
-#   INIT=models/unet16-coded STEPS=5000 LR=5e-4 NAME=ft bash docs/train-models.sh phase_coded 16
+#   bash scripts/train-models.sh phase_coded 16        # or: conventional 16, phase_coded 32, ...
+#   DATA=../data RUNS=../runs STEPS=25000 bash scripts/train-models.sh conventional 16
+#   bash scripts/train-models.sh phase_coded shallow   # the shallow model (32 filters)
+#   INIT=models/unet16-coded STEPS=5000 LR=5e-4 NAME=ft bash scripts/train-models.sh phase_coded 16
 #                                                   # fine-tuning a shipped model: a run of its own
 #                                                   # (STEPS new steps, a schedule peaking at LR)
 #   SETS="7 9 11 13 9-added" ...                    # shard sets to train on ($DATA/shards/CAM-nSET)

@@ -2,9 +2,9 @@
 # Fetches and prepares the licence-clean photographs the models are trained and tested on, then
 # renders the training shards and the held-out test clips (models/README.md, docs/eval.md).
 #
-#   bash docs/training-data.sh [DATA=../data]      # everything; each step skips what exists
-#   STEP=photos bash docs/training-data.sh          # only fetch and crop (photos, objects, manifest)
-#   STEP=test   bash docs/training-data.sh          # only the test clips
+#   bash scripts/training-data.sh [DATA=../data]      # everything; each step skips what exists
+#   STEP=photos bash scripts/training-data.sh          # only fetch and crop (photos, objects, manifest)
+#   STEP=test   bash scripts/training-data.sh          # only the test clips
 #
 # Sources, all from Debian's package archive (apt-get download; nothing is installed):
 #   training scenes: mate-backgrounds (nature photos, GPL-2+), plasma-workspace-wallpapers
@@ -229,8 +229,8 @@ PY
 # Training shards: windows of N = 7, 9, 11 and 13 through each camera, the same clips, motions,
 # noise and patches for both (the seed depends on N only).
 # NS, PHOTOS and SET render an extra set beside these (the models' second round, models/README.md):
-#   STEP=added bash docs/training-data.sh     # photos/train-added: links to the crops of ADDED_PKGS
-#   STEP=shards NS=9 PHOTOS=$DATA/photos/train-added SET=added SEED=200 bash docs/training-data.sh
+#   STEP=added bash scripts/training-data.sh     # photos/train-added: links to the crops of ADDED_PKGS
+#   STEP=shards NS=9 PHOTOS=$DATA/photos/train-added SET=added SEED=200 bash scripts/training-data.sh
 shards() {
   for n in ${NS:-7 9 11 13}; do
     for cam in phase_coded conventional; do
