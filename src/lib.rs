@@ -7,8 +7,8 @@
 //! - [`io`]: atomic writes, `.npy`, OpenEXR, PNG.
 //! - [`stage`]: one file per pipeline stage (config, checks, runtime); [`config`] the topology,
 //!   [`graph`] the threads and channels; [`imaging`] what a camera does to a window.
-//! - [`model`] (feature `infer`, default): the networks, their fast CPU path, model files;
-//!   [`train`] (feature `train`, with burn): training.
+//! - `model` (feature `infer`, default): the networks, their fast CPU path, model files;
+//!   `train` (feature `train`, with burn): training.
 //! - [`commands`]: one file per command (psf, generate/run/validate, train, deblur, eval,
 //!   figure, bench); [`cli`] parses and dispatches.
 //! - [`render`] (what the rendered sources draw: motions, synthetic scenes, textures), [`recon`]: the

@@ -2,7 +2,7 @@
 //! by least squares along a known motion (Raskar et al. 2006), the parabolic-motion camera by
 //! Lucy-Richardson deconvolution with its single kernel (Levin et al. 2008). Both work in linear
 //! light. And the bound `pipeline eval` sets beside the networks: the linear minimum-mean-square-
-//! error (Wiener) reconstruction that is told the true kernel ([`wiener_known_kernel`]).
+//! error (Wiener) reconstruction that is told the true kernel ([`wiener_bound`]).
 
 use crate::optics::fft::{fast_size, reflect, FftConv};
 use crate::render::scene::sub_time;

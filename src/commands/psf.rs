@@ -137,6 +137,7 @@ pub struct PsfArgs {
     #[arg(long, short)]
     pub out: Option<PathBuf>,
     /// TOML file with [optics] and/or [camera] tables (flags below override it).
+    #[allow(rustdoc::broken_intra_doc_links)] // `--help` text: the brackets are TOML tables
     #[arg(long)]
     pub config: Option<PathBuf>,
     /// Airy radius (first dark ring) at 455 nm in video pixels; default from f = 12 mm,

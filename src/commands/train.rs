@@ -7,6 +7,7 @@ use std::path::PathBuf;
 #[derive(Args, Debug)]
 pub struct TrainArgs {
     /// Training file (TOML): [model], [data], [optim], [validate], [output].
+    #[allow(rustdoc::broken_intra_doc_links)] // `--help` text: the brackets are TOML tables
     #[arg(long)]
     pub config: PathBuf,
     /// Override one key: --set optim.steps=500 (repeatable).

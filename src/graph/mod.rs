@@ -49,8 +49,8 @@ pub struct Outcome {
     pub out_dir: PathBuf,
 }
 
-/// Builds the stages of a plan and runs them to the end: [`prepare`] the output and the
-/// inputs, [`execute`] the stages, [`assemble`] the report.
+/// Builds the stages of a plan and runs them to the end: `prepare` the output and the
+/// inputs, `execute` the stages, `assemble` the report.
 ///
 /// # Errors
 /// Configuration that only shows at build time, an unwritable output folder, or the first

@@ -7,7 +7,7 @@
 //!   Sub-frame j of N, at time (j + 0.5) / N, takes the entry at that time, or the linear blend
 //!   of the two entries around it (K = N: the entries themselves, unchanged). The sub-frames'
 //!   psi is unknown and recorded as 0.
-//! - `psf_over = "psi"`: entry k is the PSF at psi = psi[0] + (psi[1] - psi[0]) k / (K - 1), and
+//! - `psf_over = "psi"`: entry k is the PSF at psi = `psi[0] + (psi[1] - psi[0]) k / (K - 1)`, and
 //!   the sub-frames' psi follow `psi_schedule` (or `psi_values`), blended between entries.
 //!
 //! A stack is checked on load: finite, non-negative, odd H and W, each channel of each entry

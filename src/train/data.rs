@@ -53,7 +53,7 @@ pub(super) struct Stream {
     pub(super) keep: usize,
 }
 
-/// A [`Stream`]'s position: `stream-NNNNNNN.json` beside the checkpoint of step NNNNNNN.
+/// A `Stream`'s position: `stream-NNNNNNN.json` beside the checkpoint of step NNNNNNN.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct StreamState {
     /// The shard list it indexes; a resume with other shards replays instead.

@@ -200,7 +200,7 @@ fn engine(cfg: &TrainConfig, device: Device, model: Net, optim: Option<(PathBuf,
 
 impl Trainer {
     /// A run of `cfg`: from fresh weights, from `init`'s, or (with `resume`) from the
-    /// checkpoint in `output.dir` ([`Start`]).
+    /// checkpoint in `output.dir` (`Start`).
     ///
     /// # Errors
     /// Bad config values (all named), an unwritable output folder, an unreadable checkpoint.

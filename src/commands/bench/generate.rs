@@ -176,7 +176,7 @@ pub(super) fn bench_plan(mode: &str, clip: &std::path::Path, out: &std::path::Pa
     crate::config::plan(bench_table(mode, clip, out)?, &format!("bench ({mode})"))
 }
 
-/// The configurations `bench generate` times, each a row ([`bench_table`] reads the words).
+/// The configurations `bench generate` times, each a row (`bench_table` reads the words).
 pub const MODES: [&str; 6] = [
     "full frame",
     "full frame, one plane (tile = 1048576)",

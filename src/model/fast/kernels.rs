@@ -375,13 +375,13 @@ pub fn conv_backward_input(dy: &T4, weight: &[f32], cin: usize, k: usize) -> T4 
 /// Gradient of the convolution's weight `[cout, cin, k, k]`: per sample, summed in sample order.
 ///
 /// Per band of rows and kernel row `ky`, `G^T[(ci, kx) x cout] += S_ky[(ci, kx) x px] *
-/// dy^T[px x cout]`, with `S_ky` the rows of [`shifted_band`] for that `ky` and the band of `dy`
+/// dy^T[px x cout]`, with `S_ky` the rows of `shifted_band` for that `ky` and the band of `dy`
 /// first copied pixel-major. Both `dy` and the input's band run along pixels, the product's
 /// inner dimension; gemm wants the operand it packs into its micro-panels to run along the
 /// output's contiguous dimension, so given `dy` (or the input) as they are it packs them with a
 /// strided gather, which cost more than the products themselves (11% of a U-Net 16 training
 /// step against 6%). `dy`'s band is the smaller, so it is the one transposed, once, by
-/// [`transpose_band`]; `G^T` is transposed and its rows put back in (ci, ky, kx) order at the end.
+/// `transpose_band`; `G^T` is transposed and its rows put back in (ci, ky, kx) order at the end.
 pub fn conv_backward_weight(x: &T4, dy: &T4, k: usize) -> Vec<f32> {
     let (n, cin, h, w, cout) = (x.n, x.c, x.h, x.w, dy.c);
     let kk = cin * k * k;

@@ -1,4 +1,4 @@
-//! The CPU fast path: the same two networks as [`super::Net`], forward and backward written out
+//! The CPU fast path: the same two networks as `model::Net` (burn), forward and backward written out
 //! as shifted copies (im2col for the widest layers) + matrix products (the `gemm` crate) on all
 //! cores (rayon).
 //!
