@@ -14,6 +14,9 @@
 #   LEVELS=4 INIT=models/burst-unet32-coded bash scripts/train-burst.sh phase_coded
 #                                                      # told the time on every decoder level
 #                                                      # ($RUNS/burst-unet32-film4-phase_coded)
+#   ENDS=0.5 INIT=models/burst-unet32-coded bash scripts/train-burst.sh phase_coded
+#                                                      # half the samples at the first or last time
+#                                                      # ($RUNS/burst-unet32-ends0.5-phase_coded)
 #
 # Needs the photographs of scripts/training-data.sh (STEP=photos bash scripts/training-data.sh).
 set -euo pipefail
@@ -26,6 +29,7 @@ WIDTH=${WIDTH:-32}
 LR=${LR:-3e-4}
 WARMUP=${WARMUP:-200}
 LEVELS=${LEVELS:-1}
+ENDS=${ENDS:-0}
 PIPELINE=${PIPELINE:-target/release/pipeline}
 "$PIPELINE" train --help >/dev/null 2>&1 || { echo "$0: $PIPELINE cannot train: build it with cargo build --release --features train" >&2; exit 2; }
 
@@ -50,12 +54,12 @@ case "$WHAT" in
   conventional) init=${INIT:-models/unet$WIDTH-conventional} ;;
   *) echo "train-burst.sh: $WHAT: expected shards, phase_coded or conventional" >&2; exit 2 ;;
 esac
-name="burst-unet$WIDTH"; [ "$LEVELS" = 1 ] || name="$name-film$LEVELS"
+name="burst-unet$WIDTH"; [ "$LEVELS" = 1 ] || name="$name-film$LEVELS"; [ "$ENDS" = 0 ] || name="$name-ends$ENDS"
 dir="$RUNS/$name-$WHAT"
 resume=(); [ -f "$dir/latest.json" ] && resume=(--resume)
 RAYON_NUM_THREADS=${THREADS:-1} exec nice -n 19 "$PIPELINE" train --config pipelines/train.toml "${resume[@]}" --progress never \
   --set model.type='"burst_unet"' --set model.base="$WIDTH" --set model.levels="$LEVELS" --set "init=\"$init\"" \
-  --set "data.shards=[\"$DATA/shards/burst-$WHAT-n9/*.tar\"]" --set data.val_fraction=0.1 --set data.shuffle_buffer=1024 \
+  --set "data.shards=[\"$DATA/shards/burst-$WHAT-n9/*.tar\"]" --set data.val_fraction=0.1 --set data.shuffle_buffer=1024 --set data.burst_ends="$ENDS" \
   --set optim.steps="$STEPS" --set optim.lr="$LR" --set optim.lr_min_factor=0.05 --set optim.warmup_steps="$WARMUP" \
   --set validate.every=500 --set validate.max_samples=256 \
   --set output.checkpoint_every=250 --set output.average_last=4 --set "output.dir=\"$dir\""

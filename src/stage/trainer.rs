@@ -33,6 +33,9 @@ pub struct TrainerSinkConfig {
     pub shuffle_buffer: usize,
     #[serde(default = "d_true")]
     pub augment: bool,
+    /// As the training file's `data.burst_ends`.
+    #[serde(default)]
+    pub burst_ends: f64,
     #[serde(default = "d_ckpt")]
     pub checkpoint_every: usize,
 }
@@ -72,6 +75,7 @@ impl TrainerSinkConfig {
                 val_fraction: self.val_fraction,
                 shuffle_buffer: self.shuffle_buffer,
                 augment: self.augment,
+                burst_ends: self.burst_ends,
             },
             optim: self.optim.clone(),
             validate: self.validate.clone(),

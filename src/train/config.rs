@@ -18,6 +18,14 @@ pub struct DataConfig {
     /// Random flips and 90-degree rotations.
     #[serde(default = "d_true")]
     pub augment: bool,
+    /// Burst models: the share of samples trained at the first or the last time of their burst
+    /// (half each); the rest at a time drawn uniformly, ends included. 0: uniform.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub burst_ends: f64,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -215,6 +223,7 @@ impl TrainConfig {
             c.fail("data.shards", "names no shard");
         }
         c.range("data.val_fraction", self.data.val_fraction, 0.0, 0.9);
+        c.range("data.burst_ends", self.data.burst_ends, 0.0, 1.0);
         c.range_usize("data.shuffle_buffer", self.data.shuffle_buffer, 1, 1_000_000);
         c.range_usize("optim.steps", self.optim.steps, 1, 100_000_000);
         c.range_usize("optim.batch", self.optim.batch, 1, 4096);

@@ -27,6 +27,25 @@ pub fn val_target(p: &Pair, burst_model: bool) -> (f32, &[u8]) {
     target(p, burst_model, |k| (hash_str(&p.key) % k as u64) as usize)
 }
 
+/// Which of a burst's `k` times a training sample is learnt at, at `step` in batch place `i`:
+/// uniform, except a share `ends` of samples at the first or the last time (half each).
+pub fn burst_time(seed: u64, step: usize, i: usize, k: usize, ends: f64) -> usize {
+    let uniform = (hash(&[seed, step as u64, i as u64, hash_str("time")]) % k as u64) as usize;
+    if ends <= 0.0 {
+        return uniform;
+    }
+    let h = hash(&[seed, step as u64, i as u64, hash_str("ends")]);
+    if ((h >> 11) as f64 / (1u64 << 53) as f64) < ends {
+        if h & 1 == 0 {
+            0
+        } else {
+            k - 1
+        }
+    } else {
+        uniform
+    }
+}
+
 pub(super) fn evaluate_with(
     val: &[Pair],
     burst: bool,

@@ -114,3 +114,29 @@ fn augmentations_are_the_eight_symmetries_of_the_square() {
     assert_eq!(all.len(), 8);
     assert_eq!(augment(&img, 4, 0), img);
 }
+
+#[test]
+fn a_share_of_burst_samples_learns_at_the_ends_and_none_by_default() {
+    let count = |ends: f64| {
+        let mut at = [0usize; 9];
+        for step in 0..400 {
+            for i in 0..8 {
+                at[engine::burst_time(7, step, i, 9, ends)] += 1;
+            }
+        }
+        at
+    };
+    // Uniform: each of 9 times about 1/9 of 3,200 draws.
+    let u = count(0.0);
+    assert!(u.iter().all(|&n| (280..430).contains(&n)), "{u:?}");
+    // Half at the ends: each end about 1/4 + 1/18 of the draws, each other time 1/18.
+    let e = count(0.5);
+    for (k, &n) in e.iter().enumerate() {
+        let want = if k == 0 || k == 8 { 3200.0 * (0.25 + 0.5 / 9.0) } else { 3200.0 * 0.5 / 9.0 };
+        assert!((n as f64 - want).abs() < 0.2 * want, "time {k}: {n} of 3200, want about {want:.0}: {e:?}");
+    }
+    // The default draws what the uniform rule drew before the key existed.
+    for step in 0..50 {
+        assert_eq!(engine::burst_time(3, step, 1, 9, 0.0), (hash(&[3, step as u64, 1, hash_str("time")]) % 9) as usize);
+    }
+}

@@ -309,11 +309,8 @@ impl Trainer {
         let lqs: Vec<Vec<u8>> = batch.iter().enumerate().map(|(i, p)| aug(&p.lq, i)).collect();
         // A burst model learns each sample at one of its burst's times, drawn per step.
         let burst = cfg.model.is_burst();
-        let targets: Vec<(f32, &[u8])> = batch
-            .iter()
-            .enumerate()
-            .map(|(i, p)| target(p, burst, |k| (hash(&[cfg.seed, step as u64, i as u64, hash_str("time")]) % k as u64) as usize))
-            .collect();
+        let targets: Vec<(f32, &[u8])> =
+            batch.iter().enumerate().map(|(i, p)| target(p, burst, |k| burst_time(cfg.seed, step, i, k, cfg.data.burst_ends))).collect();
         let ts: Vec<f32> = if burst { targets.iter().map(|t| t.0).collect() } else { Vec::new() };
         let gts: Vec<Vec<u8>> = targets.iter().enumerate().map(|(i, t)| aug(t.1, i)).collect();
         let x = to_t4(&lqs.iter().map(|v| v.as_slice()).collect::<Vec<_>>(), w, h);
