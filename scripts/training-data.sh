@@ -5,6 +5,7 @@
 #   bash scripts/training-data.sh [DATA=../data]      # everything; each step skips what exists
 #   STEP=photos bash scripts/training-data.sh          # only fetch and crop (photos, objects, manifest)
 #   STEP=test   bash scripts/training-data.sh          # only the test clips
+#   STEP=test-more bash scripts/training-data.sh       # 72 more clips each of shake and hand
 #
 # Sources, all from Debian's package archive (apt-get download; nothing is installed):
 #   training scenes: mate-backgrounds (nature photos, GPL-2+), plasma-workspace-wallpapers
@@ -249,20 +250,33 @@ shards() {
 # motion, shorter), written as lossless video.
 test_clips() {
   for kind in shake objects still pan rotate zoom hand; do
-    d="$DATA/test/$kind"
-    [ -n "$(ls "$d"/*.mkv 2>/dev/null)" ] && continue
-    rm -rf "$d.frames"
-    w=""; for k in shake objects still pan rotate zoom hand; do w="$w${w:+, }$k = $([ $k = "$kind" ] && echo 1.0 || echo 0.0)"; done
-    "$PIPELINE" run pipelines/test-clips.toml -o "$d.frames" --set "sources.stills.paths=[\"$DATA/photos/test\"]" \
-      --set "sources.stills.motion.weights={ $w }" --set seed=$((100 + ${#kind}))
-    mkdir -p "$d"
-    for sharp in "$d.frames"/*/sharp; do
-      clip=$(basename "$(dirname "$sharp")")
-      ffmpeg -nostdin -v error -y -framerate 240 -i "$sharp/%06d.png" -c:v ffv1 "$d/$clip.mkv"
-      cp "$(dirname "$sharp")/motion.jsonl" "$d/$clip.motion.jsonl"   # the true motion, for eval's Wiener bound
-    done
-    rm -rf "$d.frames"
+    test_clip "$DATA/test/$kind" "$kind" $((100 + ${#kind}))
   done
+}
+
+# More clips of the shakes (the same test photographs, other seeds: $DATA/test-more/{shake,hand},
+# 72 clips each), for tables by spread with more than a few windows a bin.
+test_more() {
+  for kind in shake hand; do
+    for s in 1 2 3 4; do test_clip "$DATA/test-more/$kind/s$s" "$kind" $((200 + 10 * s + ${#kind})); done
+  done
+}
+
+# test_clip DIR KIND SEED: the test photographs moved by KIND alone, as lossless clips in DIR.
+test_clip() {
+  local d=$1 kind=$2 seed=$3 w="" k sharp clip
+  [ -n "$(ls "$d"/*.mkv 2>/dev/null)" ] && return 0
+  rm -rf "$d.frames"
+  for k in shake objects still pan rotate zoom hand; do w="$w${w:+, }$k = $([ $k = "$kind" ] && echo 1.0 || echo 0.0)"; done
+  "$PIPELINE" run pipelines/test-clips.toml -o "$d.frames" --set "sources.stills.paths=[\"$DATA/photos/test\"]" \
+    --set "sources.stills.motion.weights={ $w }" --set seed="$seed"
+  mkdir -p "$d"
+  for sharp in "$d.frames"/*/sharp; do
+    clip=$(basename "$(dirname "$sharp")")
+    ffmpeg -nostdin -v error -y -framerate 240 -i "$sharp/%06d.png" -c:v ffv1 "$d/$clip.mkv"
+    cp "$(dirname "$sharp")/motion.jsonl" "$d/$clip.motion.jsonl"   # the true motion, for eval's Wiener bound
+  done
+  rm -rf "$d.frames"
 }
 
 # The packages added in the second round (148 photographs, 480 crops).
@@ -280,5 +294,6 @@ case $STEP in
   added) added ;;
   shards) shards ;;
   test) test_clips ;;
+  test-more) test_more ;;
   all) photos; shards; test_clips ;;
 esac
