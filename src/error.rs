@@ -10,8 +10,10 @@ pub enum Error {
     Io { path: PathBuf, cause: std::io::Error },
     #[error("{}", .0.iter().map(|e| e.to_string()).collect::<Vec<_>>().join("\n"))]
     Config(Vec<crate::checks::ConfigError>),
-    #[error("{0}")]
-    Invalid(String),
+    /// A program a command runs (the ffmpeg CLI, a child `pipeline`) could not start (the OS
+    /// error kept) or exited with a failure (its status in `why`).
+    #[error("{program}: {why}")]
+    Program { program: String, why: String, source: Option<std::io::Error> },
     /// A file that is not what it must be (a model, checkpoint, optimizer state, shard or image
     /// that does not parse or does not fit), named, with why.
     #[error("{}: {why}", path.display())]
@@ -57,8 +59,9 @@ pub enum Error {
     /// code 130, the shell's for SIGINT.
     #[error("interrupted: {0}")]
     Interrupted(String),
-    /// burn could not serialise a network or optimizer state (`what` names which); the cause is kept.
-    #[error("{what}: burn could not serialise it")]
+    /// A network, optimizer state or settings table could not be serialised (`what` names which);
+    /// the serialiser's error (burn's, the toml crate's) is kept.
+    #[error("{what}: could not be serialised")]
     Serialise { what: String, source: Box<dyn std::error::Error + Send + Sync> },
     /// A stage panicked (a bug): the run stopped, its sink removed what it had not finished and
     /// the report says which stage. Exit code 1.

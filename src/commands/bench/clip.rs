@@ -1,13 +1,13 @@
 use super::*;
 
 pub(super) fn ffmpeg_cli(args: &[&str]) -> crate::Result<()> {
-    let st = std::process::Command::new("ffmpeg")
-        .args(["-v", "error", "-y"])
-        .args(args)
-        .status()
-        .map_err(|e| crate::Error::Invalid(format!("ffmpeg CLI not found ({e}); run .ci/setup.sh")))?;
+    let st = std::process::Command::new("ffmpeg").args(["-v", "error", "-y"]).args(args).status().map_err(|e| crate::Error::Program {
+        program: "ffmpeg".into(),
+        why: "the CLI could not be started (.ci/setup.sh installs it)".into(),
+        source: Some(e),
+    })?;
     if !st.success() {
-        return Err(crate::Error::Invalid(format!("ffmpeg {args:?} failed")));
+        return Err(crate::Error::Program { program: "ffmpeg".into(), why: format!("{args:?} failed ({st})"), source: None });
     }
     Ok(())
 }

@@ -240,7 +240,7 @@ fn peak_in_child(clip: &std::path::Path, dir: &std::path::Path) -> crate::Result
     let out = dir.join("out-4k");
     let config = dir.join("full-frame.toml");
     let table = bench_table("full frame", clip, &out)?;
-    let text = toml::to_string(&table).map_err(|e| crate::Error::Invalid(format!("bench config: {e}")))?;
+    let text = toml::to_string(&table).map_err(|e| crate::Error::Serialise { what: config.display().to_string(), source: Box::new(e) })?;
     std::fs::write(&config, text).map_err(|e| crate::Error::Io { path: config.clone(), cause: e })?;
     let exe = std::env::current_exe().map_err(|e| crate::Error::Io { path: "current executable".into(), cause: e })?;
     let status = std::process::Command::new(&exe)
@@ -252,7 +252,11 @@ fn peak_in_child(clip: &std::path::Path, dir: &std::path::Path) -> crate::Result
         .status()
         .map_err(|e| crate::Error::Io { path: exe.clone(), cause: e })?;
     if !status.success() {
-        return Err(crate::Error::Invalid(format!("bench: the 4K run of {} failed ({status})", clip.display())));
+        return Err(crate::Error::Program {
+            program: exe.display().to_string(),
+            why: format!("the 4K run of {} failed ({status})", clip.display()),
+            source: None,
+        });
     }
     let report = out.join("report.json");
     let text = std::fs::read_to_string(&report).map_err(|e| crate::Error::Io { path: report.clone(), cause: e })?;
