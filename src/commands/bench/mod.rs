@@ -3,7 +3,7 @@
 //!
 //! One file per benchmark, each with its baseline (FFmpeg decode-only, PyTorch on the same
 //! network and thread count) and its report: `psf.rs`, `decode.rs`, `generate.rs`, `train.rs`,
-//! `deblur.rs`; `clip.rs` makes test clips and times FFmpeg with its CLI.
+//! `deblur.rs`, `kernels.rs` (one convolution layer, direct against Winograd); `clip.rs` makes test clips and times FFmpeg with its CLI.
 
 use crate::optics::{Camera, CameraConfig, CameraKind, OpticsConfig};
 use std::time::Instant;
@@ -14,6 +14,8 @@ mod clip;
 mod deblur;
 mod decode;
 mod generate;
+#[cfg(feature = "infer")]
+mod kernels;
 mod psf;
 #[cfg(feature = "train")]
 mod train;
@@ -23,6 +25,8 @@ use clip::*;
 pub use deblur::*;
 pub use decode::*;
 pub use generate::*;
+#[cfg(feature = "infer")]
+pub use kernels::*;
 pub use psf::*;
 #[cfg(feature = "train")]
 pub use train::*;
@@ -114,6 +118,15 @@ pub enum BenchCommand {
         /// `deblur --burst` (the time-independent part once) against K whole passes.
         #[arg(long, value_name = "K", value_parser = clap::value_parser!(u16).range(2..=64))]
         burst: Option<u16>,
+    },
+    /// One 3x3 convolution layer of the fast path at the U-Nets' channel counts and sizes on a
+    /// 128 px patch, the direct convolution against Winograd F(2x2, 3x3): where the fast path
+    /// switches (it takes Winograd where it says `taken`).
+    #[cfg(feature = "infer")]
+    Kernels {
+        /// Repeats each way; the median is reported.
+        #[arg(long, default_value_t = 31, value_parser = clap::value_parser!(u16).range(1..=1000))]
+        repeats: u16,
     },
     /// Time to build the kernels of one window, cold (new camera) and from the cache.
     Psf {
@@ -214,6 +227,12 @@ pub fn command(c: BenchCommand) -> anyhow::Result<()> {
         #[cfg(feature = "ffmpeg")]
         BenchCommand::Generate { clip: c, repeats } => {
             let r = generate(c.width, c.height, c.fps, c.seconds, repeats as usize)?;
+            println!("{}", serde_json::to_string_pretty(&r)?);
+            Ok(())
+        }
+        #[cfg(feature = "infer")]
+        BenchCommand::Kernels { repeats } => {
+            let r = kernels(repeats as usize);
             println!("{}", serde_json::to_string_pretty(&r)?);
             Ok(())
         }

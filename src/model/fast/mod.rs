@@ -57,3 +57,4 @@ pub use layers::{Conv, ConvBnAct};
 pub use net::FastNet;
 pub use optim::{huber, train_step, Adam, AdamStateError};
 pub use tensor::T4;
+pub use winograd::{conv3x3 as winograd_conv3x3, weights as winograd_weights, worth_it as winograd_worth_it};

@@ -39,25 +39,17 @@ pub fn weights(weight: &[f32], cout: usize, cin: usize) -> Vec<f32> {
 }
 
 /// Whether a layer of `cin` inputs and `cout` outputs on `h x w` takes [`conv3x3`]: at least
-/// [`MIN_CHANNELS`] each way and [`MIN_BLOCKS`] blocks. One 128 x 128 patch, 2 threads, one
-/// layer against the direct convolution (`time_layers` below, medians of 31): 16 channels on
+/// `MIN_CHANNELS` each way and `MIN_BLOCKS` blocks. One 128 x 128 patch, 2 threads, one
+/// layer against the direct convolution (`pipeline bench kernels`, medians of 31): 16 channels on
 /// 128 x 128 0.57x, 32 on 128 0.70x, 32 on 64 0.92x, 64 on 64 0.66x, 64 on 32 0.78x, 128 on 32
 /// 0.61x, 128 on 16 0.49x, 256 on 16 0.57x; but 512 on 8 x 8 1.17x (16 blocks: products only
 /// 16 columns wide).
 pub fn worth_it(cin: usize, cout: usize, h: usize, w: usize) -> bool {
-    #[cfg(test)]
-    if OFF.load(std::sync::atomic::Ordering::Relaxed) {
-        return false;
-    }
     cin >= MIN_CHANNELS && cout >= MIN_CHANNELS && h.div_ceil(2) * w.div_ceil(2) >= MIN_BLOCKS
 }
 
 /// 2 x 2 output blocks a layer needs at least for [`worth_it`] (a 16 x 16 image).
 const MIN_BLOCKS: usize = 64;
-
-/// Tests only: turns [`worth_it`] off, to time whole networks with and without it.
-#[cfg(test)]
-pub static OFF: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
 
 /// Input and output channels a layer needs at least for [`worth_it`].
 const MIN_CHANNELS: usize = 16;
@@ -408,69 +400,5 @@ mod tests {
         let fast = conv3x3(&x, &u, None, 16, None);
         let worst = direct.d.iter().zip(&fast.d).fold(0.0f32, |a, (p, q)| a.max((p - q).abs()));
         assert!(worst > 1e-3, "{worst}");
-    }
-}
-
-#[cfg(all(test, feature = "train"))]
-mod timing {
-    use super::*;
-    use crate::model::fast::kernels::conv_forward;
-
-    #[test]
-    #[ignore]
-    fn time_nets() {
-        use crate::model::{Arch, Net};
-        for arch in [Arch::Shallow { width: 32 }, Arch::Unet { base: 16 }, Arch::Unet { base: 32 }] {
-            let net = crate::model::fast::FastNet::from_net(&Net::seeded(arch, &burn::tensor::Device::flex(), 7));
-            let x = T4::new(1, 3, 128, 128, (0..3 * 128 * 128).map(|i| (i % 97) as f32 / 97.0).collect());
-            let mut times = [Vec::new(), Vec::new()];
-            for r in 0..60 {
-                let off = r % 2 == 1;
-                OFF.store(off, std::sync::atomic::Ordering::Relaxed);
-                let t = std::time::Instant::now();
-                std::hint::black_box(net.forward(&x));
-                if r >= 2 {
-                    times[off as usize].push(t.elapsed().as_secs_f64() * 1e3);
-                }
-            }
-            OFF.store(false, std::sync::atomic::Ordering::Relaxed);
-            for t in &mut times {
-                t.sort_by(f64::total_cmp);
-            }
-            eprintln!("{arch:?}: winograd {:.2} ms, direct {:.2} ms (medians)", times[0][14], times[1][14]);
-        }
-    }
-
-    #[test]
-    #[ignore]
-    fn time_layers() {
-        for &(c, s) in &[(16usize, 128usize), (32, 128), (32, 64), (64, 64), (64, 32), (128, 32), (128, 16), (256, 16), (512, 8)] {
-            let x = T4::new(1, c, s, s, vec![0.1; c * s * s]);
-            let wt = vec![0.01f32; c * c * 9];
-            let u = weights(&wt, c, c);
-            let med = |f: &dyn Fn()| {
-                let mut v: Vec<f64> = (0..31)
-                    .map(|_| {
-                        let t = std::time::Instant::now();
-                        f();
-                        t.elapsed().as_secs_f64() * 1e3
-                    })
-                    .collect();
-                v.sort_by(f64::total_cmp);
-                v[15]
-            };
-            let d = med(&|| drop(std::hint::black_box(conv_forward(&x, &wt, None, c, 3))));
-            let w = med(&|| drop(std::hint::black_box(conv3x3(&x, &u, None, c, None))));
-            let (th, tw) = (s / 2, s / 2);
-            let v = std::cell::RefCell::new(vec![0.0f32; 16 * c * th * tw]);
-            let ti = med(&|| transform_inputs(&x.d, c, s, s, 0, th, &mut v.borrow_mut()));
-            let prod = vec![0.0f32; 16 * c * th * tw];
-            let out = std::cell::RefCell::new(vec![0.0f32; c * s * s]);
-            let to = med(&|| transform_outputs(&prod, (c, th * tw), (s, s), (0, th), None, None, Ptr(out.borrow_mut().as_mut_ptr())));
-            eprintln!(
-                "{c} ch {s}x{s}: direct {d:.3} ms, winograd {w:.3} ms ({:.2}x); one thread: inputs {ti:.3} ms, outputs {to:.3} ms",
-                w / d
-            );
-        }
     }
 }
