@@ -15,8 +15,9 @@
 //!   classical reconstructions of the other cameras.
 
 // Numeric kernels index several arrays in step (planes, channels, taps): an index loop says so
-// more plainly than zipped iterators; and they take their sizes as plain arguments.
-#![allow(clippy::needless_range_loop, clippy::too_many_arguments, clippy::type_complexity)]
+// more plainly than zipped iterators. (A kernel that takes its sizes as plain arguments says so
+// where it is, with a local `too_many_arguments` allow.)
+#![allow(clippy::needless_range_loop, clippy::type_complexity)]
 
 /// `eprintln!` that never panics (it shadows the standard one in this crate): a closed stderr
 /// (`pipeline generate ... 2>&1 | head -c1`) loses the messages, not the work.

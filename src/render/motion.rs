@@ -10,6 +10,7 @@
 //! analytic edge) composited over the background in order, so nearer objects occlude farther ones.
 
 pub use super::sprite::Sprite;
+use super::texture::Photo;
 use crate::checks::Checker;
 use crate::rng::Rng;
 use serde::{Deserialize, Serialize};
@@ -267,19 +268,16 @@ fn tau(j: usize, n: usize) -> f64 {
 }
 
 impl WindowMotion {
-    /// Draws the motion of one window of `n` frames of a `w x h` view of an image `iw x ih`.
-    #[allow(clippy::too_many_arguments)]
+    /// Draws the motion of one window of `n` frames of a `w x h` view of `photo`.
     pub fn draw(
         cfg: &MotionConfig,
         n: usize,
-        w: usize,
-        h: usize,
-        img: &[Vec<f32>; 3],
-        iw: usize,
-        ih: usize,
+        (w, h): (usize, usize),
+        photo: Photo,
         sprites: &[std::sync::Arc<Sprite>],
         rng: &mut Rng,
     ) -> WindowMotion {
+        let Photo { planes: img, w: iw, h: ih } = photo;
         let scale = (n.max(2) - 1) as f64 / 8.0;
         let kind = cfg.kind(rng);
         let (fw, fh) = (w as f64, h as f64);
@@ -363,8 +361,9 @@ impl WindowMotion {
         v.to_string()
     }
 
-    /// Frame `j` of the window: the view `w x h` at `off` in the image, then the objects.
-    pub fn render(&self, j: usize, img: &[Vec<f32>; 3], iw: usize, ih: usize, w: usize, h: usize, off: (f64, f64)) -> [Vec<f32>; 3] {
+    /// Frame `j` of the window: the view `w x h` at `off` in `photo`, then the objects.
+    pub fn render(&self, j: usize, photo: Photo, (w, h): (usize, usize), off: (f64, f64)) -> [Vec<f32>; 3] {
+        let Photo { planes: img, w: iw, h: ih } = photo;
         let mut planes: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0f32; w * h]);
         let pose = self.poses[j];
         for y in 0..h {
@@ -448,11 +447,12 @@ mod tests {
         let off = (32.0, 24.0);
         for kind in ["still", "pan", "shake", "objects", "rotate", "zoom", "hand"] {
             let cfg = only(kind);
-            let m = WindowMotion::draw(&cfg, 9, w, h, &img, iw, ih, &[], &mut Rng::new(5));
+            let photo = Photo { planes: &img, w: iw, h: ih };
+            let m = WindowMotion::draw(&cfg, 9, (w, h), photo, &[], &mut Rng::new(5));
             assert_eq!(m.kind.name(), kind);
             let label: serde_json::Value = serde_json::from_str(&m.label()).unwrap();
             assert_eq!(label["kind"], kind);
-            let (first, mid) = (m.render(0, &img, iw, ih, w, h, off), m.render(4, &img, iw, ih, w, h, off));
+            let (first, mid) = (m.render(0, photo, (w, h), off), m.render(4, photo, (w, h), off));
             let diff: f32 = first[1].iter().zip(&mid[1]).map(|(a, b)| (a - b).abs()).sum::<f32>() / (w * h) as f32;
             if kind == "still" {
                 assert_eq!(m.extent_px, 0.0);
@@ -484,9 +484,10 @@ mod tests {
         }
         let sprite = std::sync::Arc::new(Sprite::from_rgba8(sw, sh, &rgba, 64));
         let black: [Vec<f32>; 3] = std::array::from_fn(|_| vec![0.0; 64 * 64]);
-        let mut m = WindowMotion::draw(&only("still"), 3, 64, 64, &black, 64, 64, &[], &mut Rng::new(1));
+        let photo = Photo { planes: &black, w: 64, h: 64 };
+        let mut m = WindowMotion::draw(&only("still"), 3, (64, 64), photo, &[], &mut Rng::new(1));
         m.objects.push(Object { sprite, scale: 1.0, path: vec![((32.0, 32.0), 0.0); 3] });
-        let f = m.render(1, &black, 64, 64, 64, 64, (0.0, 0.0));
+        let f = m.render(1, photo, (64, 64), (0.0, 0.0));
         let v = |x: usize, y: usize| f[0][y * 64 + x];
         assert_eq!(v(32, 32), 1.0, "inside: the object hides the background");
         assert_eq!(v(10, 10), 0.0, "outside: the background");

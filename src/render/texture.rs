@@ -3,6 +3,14 @@
 
 use crate::rng::{hash, Rng};
 
+/// A photograph the motions view: planar linear RGB, `w x h`.
+#[derive(Debug, Clone, Copy)]
+pub struct Photo<'a> {
+    pub planes: &'a [Vec<f32>; 3],
+    pub w: usize,
+    pub h: usize,
+}
+
 /// Bilinear sample of a planar image with mirrored borders.
 pub fn sample(img: &[f32], w: usize, h: usize, x: f64, y: f64) -> f32 {
     use crate::optics::fft::reflect;

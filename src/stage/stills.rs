@@ -9,6 +9,7 @@ use crate::checks::ConfigError;
 use crate::frame::{Frame, FrameData, Input, InputError};
 use crate::item::Item;
 use crate::render::motion::{MotionConfig, Sprite, WindowMotion};
+use crate::render::texture::Photo;
 use crate::render::texture::{procedural_texture, sample};
 use crate::rng::{hash, hash_str, Rng};
 use serde::{Deserialize, Serialize};
@@ -226,10 +227,11 @@ impl Stills {
         let mut k = 0u64;
         while (frames.len() as u64) < self.cfg.frames {
             let mut rng = Rng::new(hash(&[self.seed, input.id, k, hash_str("motion")]));
-            let wm = WindowMotion::draw(m, n, w, h, img, iw, ih, &self.sprites, &mut rng);
+            let photo = Photo { planes: img, w: iw, h: ih };
+            let wm = WindowMotion::draw(m, n, (w, h), photo, &self.sprites, &mut rng);
             let label: Arc<str> = wm.label().into();
             for j in 0..n.min((self.cfg.frames - frames.len() as u64) as usize) {
-                let mut f = Frame::new(w, h, FrameData::Planar(wm.render(j, img, iw, ih, w, h, off)));
+                let mut f = Frame::new(w, h, FrameData::Planar(wm.render(j, photo, (w, h), off)));
                 f.motion = Some(label.clone());
                 frames.push(f);
             }
