@@ -244,6 +244,8 @@ def main():
     ap.add_argument("--min-samples", type=int, default=2000)
     ap.add_argument("--save-every", type=float, default=60.0)
     ap.add_argument("--ema", type=float, default=0.999)
+    ap.add_argument("--burst-ends", type=float, default=0.0,
+                    help="burst nets: share of samples learnt at the first or last sub-frame (pipeline train's data.burst_ends)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--device", default="cuda" if torch.cuda.is_available() else "cpu")
     a = ap.parse_args()
@@ -331,7 +333,12 @@ def main():
         idx = torch.randint(0, len(data), (a.batch,), generator=g).to(dev)
         batch = augment(data[idx].float() / 255.0, g)  # [b, 2 + targets, c, h, w]
         # One sub-frame per sample for the burst nets; the middle one for the others.
-        k = torch.randint(0, data.targets, (a.batch,), generator=g).to(dev)
+        k = torch.randint(0, data.targets, (a.batch,), generator=g)
+        if a.burst_ends > 0:
+            # As `data.burst_ends`: a share of samples at the first or the last sub-frame.
+            end = torch.rand(a.batch, generator=g) < a.burst_ends
+            k = torch.where(end, torch.randint(0, 2, (a.batch,), generator=g) * (data.targets - 1), k)
+        k = k.to(dev)
         rows = torch.arange(a.batch, device=dev)
         for n in nets:
             x = batch[:, n["cam"]].contiguous(memory_format=torch.channels_last)
