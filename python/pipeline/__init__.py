@@ -20,7 +20,7 @@ from . import _native
 from ._native import __version__
 from .safetensors import load_safetensors
 
-__all__ = ["CodedBlurDataset", "psf", "deblur", "deblur_burst", "to_torch", "load_safetensors", "__version__"]
+__all__ = ["CodedBlurDataset", "psf", "deblur", "deblur_burst", "evaluate", "to_torch", "load_safetensors", "__version__"]
 
 # CodedBlurDataset is a torch IterableDataset when torch is installed (so DataLoader takes it
 # as one and shards it across its workers), a plain iterable otherwise.
@@ -218,6 +218,24 @@ def deblur_burst(image, k=9, model=None, camera=None):
     float32 in [0, 1].
     """
     return _native.deblur_burst(_image(image), int(k), None if model is None else os.fspath(model), camera)
+
+
+def evaluate(videos, out, model=None, camera=None, overrides=None, overwrite=False):
+    """``pipeline eval``: a model's scores on high-frame-rate videos, as the command computes them.
+
+    videos: files, folders or globs; out: the folder for ``eval.json``, ``eval.md`` and
+    ``examples/`` (an existing report is kept unless ``overwrite``); model: a model file or folder
+    (None: the shipped model of ``camera``); camera: the camera the windows are blurred with
+    ("phase_coded" by default, "conventional", ...); overrides: ``{"eval.windows": [9]}``-style
+    keys of ``pipelines/eval.toml``. Returns the report (``eval.json``) as a dict: ``table`` (per
+    window length and sigma), ``per_spread``, ``records`` (every window), ...
+    """
+    if isinstance(videos, (str, os.PathLike)):
+        videos = [videos]
+    sets = [f"{k}={_toml(v)}" for k, v in (overrides or {}).items()]
+    text = _native.evaluate([os.fspath(v) for v in videos], os.fspath(out),
+                            None if model is None else os.fspath(model), camera, sets, bool(overwrite))
+    return json.loads(text)
 
 
 def to_torch(sample):

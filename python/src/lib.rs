@@ -336,12 +336,50 @@ fn deblur_burst<'py>(
     outs.concat().into_pyarray(py).reshape([k, 3, h, w])
 }
 
+/// `pipeline eval` (the single-frame scores of a model on high-frame-rate videos): writes
+/// `eval.json`, `eval.md` and `examples/` under `out` and returns `eval.json`'s text. `sets`:
+/// `key=value` overrides of `pipelines/eval.toml`; `camera`: the camera the videos are blurred
+/// with (its shipped model when `model` is None). An existing report is kept unless `overwrite`.
+#[pyfunction]
+#[pyo3(signature = (videos, out, model = None, camera = None, sets = Vec::new(), overwrite = false))]
+fn evaluate(
+    py: Python<'_>,
+    videos: Vec<String>,
+    out: std::path::PathBuf,
+    model: Option<std::path::PathBuf>,
+    camera: Option<String>,
+    sets: Vec<String>,
+    overwrite: bool,
+) -> PyResult<String> {
+    use pipeline::commands::eval::{run, EvalFile, EVAL_TOML};
+    let camera = camera
+        .map(|c| {
+            serde_json::from_value::<pipeline::optics::CameraKind>(serde_json::Value::String(c.clone()))
+                .map_err(|_| PyValueError::new_err(format!("camera {c:?}: not a camera kind (phase_coded, conventional, ...)")))
+        })
+        .transpose()?;
+    fork_guard()?;
+    py.detach(|| {
+        pipeline::io::paths::refuse_replacing(&out, &[out.join("eval.json"), out.join("eval.md")], overwrite)?;
+        let table = pipeline::config::parse(EVAL_TOML, "pipelines/eval.toml (embedded)", &sets)?;
+        let mut f = EvalFile::from_table(table, "pipelines/eval.toml (embedded)")?;
+        if let Some(k) = camera {
+            f.camera.kind = k;
+        }
+        let (net, name) = pipeline::model::infer::load_for(model.as_deref(), Some(f.camera.kind), false)?;
+        let r = run(&f, &net, &name, &videos, &out, pipeline::progress::ProgressMode::Never)?;
+        Ok::<_, pipeline::Error>(serde_json::to_string(&r).expect("json"))
+    })
+    .map_err(value_err)
+}
+
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Stream>()?;
     m.add_function(wrap_pyfunction!(psf, m)?)?;
     m.add_function(wrap_pyfunction!(deblur, m)?)?;
     m.add_function(wrap_pyfunction!(deblur_burst, m)?)?;
+    m.add_function(wrap_pyfunction!(evaluate, m)?)?;
     m.add_function(wrap_pyfunction!(check, m)?)?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     Ok(())

@@ -1,9 +1,11 @@
+import json
+
 import numpy as np
 import pytest
 from PIL import Image
 
 import pipeline
-from conftest import ROOT
+from conftest import FIXTURE, ROOT
 
 
 @pytest.mark.parametrize("args,kwargs", [
@@ -84,6 +86,25 @@ def test_deblur_burst_matches_the_cli_frame_for_frame(cli, tmp_path):
         pipeline.deblur_burst(lq8, k=1)
     with pytest.raises(ValueError, match="camera"):
         pipeline.deblur_burst(lq8, camera="flutter")
+
+
+def test_evaluate_scores_what_the_cli_scores(cli, tmp_path):
+    sets = {"eval.windows": [9], "eval.sigmas": [3.0], "eval.windows_per_video": 2, "eval.crop": 96, "eval.examples": 0}
+    r = pipeline.evaluate(FIXTURE, tmp_path / "py", overrides=sets)
+    assert r["model"] and len(r["records"]) == 2
+    args = [a for k, v in sets.items() for a in ("--set", f"{k}={v}")]
+    cli("eval", FIXTURE, "-o", tmp_path / "cli", "--progress", "never", *args)
+    want = json.loads((tmp_path / "cli" / "eval.json").read_text())
+    got = json.loads((tmp_path / "py" / "eval.json").read_text())
+    assert got == r
+    for a, b in zip(r["records"], want["records"]):
+        assert a["deblurred"] == b["deblurred"] and a["blurred"] == b["blurred"], (a, b)
+    # The report is kept unless asked to overwrite it; a bad key is named.
+    with pytest.raises(ValueError, match="eval.json"):
+        pipeline.evaluate(FIXTURE, tmp_path / "py", overrides=sets)
+    pipeline.evaluate(FIXTURE, tmp_path / "py", overrides=sets, overwrite=True, camera="conventional")
+    with pytest.raises(ValueError, match="sigmaz"):
+        pipeline.evaluate(FIXTURE, tmp_path / "bad", overrides={"eval.sigmaz": [3.0]})
 
 
 def test_exported_model_in_torch_matches_deblur(cli, tmp_path):
