@@ -1,5 +1,5 @@
-//! Frames and inputs: what sources make and stages read (the channel message is [`crate::item::Item`]; a
-//! window's result, [`crate::sample::Sample`]).
+//! Frames and inputs: what sources make and stages read (the channel message is
+//! [`crate::item::Item`]; a window's result, [`crate::sample::Sample`]).
 
 use crate::optics::transfer::Curve;
 use std::sync::Arc;

@@ -1,6 +1,7 @@
-//! A window's result ([`Sample`]: its pairs of blurred and sharp images) and the sample format every sink writes and the Python dataset yields: a sample's key
-//! (`{input}_{window}[_{patch}]`), its per-sample JSON, and the hash of the settings that decide
-//! the samples' content (kept in the manifest to tell a finished input from one to redo).
+//! A window's result ([`Sample`]: its pairs of blurred and sharp images) and the sample format
+//! every sink writes and the Python dataset yields: a sample's key (`{input}_{window}[_{patch}]`),
+//! its per-sample JSON, and the hash of the settings that decide the samples' content (kept in the
+//! manifest to tell a finished input from one to redo).
 
 use crate::frame::Input;
 use crate::optics::transfer::Curve;

@@ -1,7 +1,7 @@
 //! A model file's weights without burn: the safetensors header and tensors read directly (F32,
 //! F16 or BF16; burn's names or the PyTorch names of `pipeline export`), checked the way
-//! `model::checkpoint` (feature `train`) checks them, for the CPU inference path ([`FastNet`]). `deblur`,
-//! `eval` and `figure` load models through this, so the default build needs no burn.
+//! `model::checkpoint` (feature `train`) checks them, for the CPU inference path ([`FastNet`]).
+//! `deblur`, `eval` and `figure` load models through this, so the default build needs no burn.
 //!
 //! [`FastNet`]: crate::model::fast::FastNet
 

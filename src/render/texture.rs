@@ -3,7 +3,7 @@
 
 use crate::rng::{hash, Rng};
 
-/// A photograph the motions view: planar linear RGB, `w x h`.
+/// A photograph the motions view: planar RGB values in [0, 1], `w x h`.
 #[derive(Debug, Clone, Copy)]
 pub struct Photo<'a> {
     pub planes: &'a [Vec<f32>; 3],

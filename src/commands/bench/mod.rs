@@ -3,7 +3,8 @@
 //!
 //! One file per benchmark, each with its baseline (FFmpeg decode-only, PyTorch on the same
 //! network and thread count) and its report: `psf.rs`, `decode.rs`, `generate.rs`, `train.rs`,
-//! `deblur.rs`, `kernels.rs` (one convolution layer, direct against Winograd); `clip.rs` makes test clips and times FFmpeg with its CLI.
+//! `deblur.rs`, `kernels.rs` (one convolution layer, direct against Winograd); `clip.rs` makes
+//! test clips and times FFmpeg with its CLI.
 
 use crate::optics::{Camera, CameraConfig, CameraKind, OpticsConfig};
 use std::time::Instant;
