@@ -352,6 +352,7 @@ fn evaluate(
     overwrite: bool,
 ) -> PyResult<String> {
     use pipeline::commands::eval::{run, EvalFile, EVAL_TOML};
+    let origin = "pipelines/eval.toml (embedded)";
     let camera = camera
         .map(|c| {
             serde_json::from_value::<pipeline::optics::CameraKind>(serde_json::Value::String(c.clone()))
@@ -361,12 +362,8 @@ fn evaluate(
     fork_guard()?;
     py.detach(|| {
         pipeline::io::paths::refuse_replacing(&out, &[out.join("eval.json"), out.join("eval.md")], overwrite)?;
-        let table = pipeline::config::parse(EVAL_TOML, "pipelines/eval.toml (embedded)", &sets)?;
-        let mut f = EvalFile::from_table(table, "pipelines/eval.toml (embedded)")?;
-        if let Some(k) = camera {
-            f.camera.kind = k;
-        }
-        let (net, name) = pipeline::model::infer::load_for(model.as_deref(), Some(f.camera.kind), false)?;
+        let table = pipeline::config::parse(EVAL_TOML, origin, &sets)?;
+        let (f, net, name) = EvalFile::with_model(table, origin, camera, model.as_deref(), false)?;
         let r = run(&f, &net, &name, &videos, &out, pipeline::progress::ProgressMode::Never)?;
         Ok::<_, pipeline::Error>(serde_json::to_string(&r).expect("json"))
     })

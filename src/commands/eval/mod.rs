@@ -210,6 +210,27 @@ impl EvalFile {
         }
         Ok(f)
     }
+
+    /// The eval file of `table` with `camera` put in, and the model it scores: `model`, else the
+    /// camera's shipped one (a burst model when `burst`). The command and the Python package's
+    /// `evaluate` start here.
+    ///
+    /// # Errors
+    /// As [`EvalFile::from_table`]; a model that cannot be read or is of the wrong kind.
+    pub fn with_model(
+        table: toml::Table,
+        origin: &str,
+        camera: Option<crate::optics::CameraKind>,
+        model: Option<&Path>,
+        burst: bool,
+    ) -> Result<(EvalFile, FastNet, String)> {
+        let mut f = EvalFile::from_table(table, origin)?;
+        if let Some(k) = camera {
+            f.camera.kind = k;
+        }
+        let (net, name) = crate::model::infer::load_for(model, Some(f.camera.kind), burst)?;
+        Ok((f, net, name))
+    }
 }
 
 /// One scored window at one noise level.
@@ -407,11 +428,7 @@ fn command_burst(
 ) -> anyhow::Result<()> {
     crate::io::paths::refuse_replacing(&out, &[out.join("burst.json"), out.join("burst.md")], overwrite)?;
     let (table, origin) = file.load(crate::commands::eval::EVAL_TOML, "pipelines/eval.toml")?;
-    let mut f = crate::commands::eval::EvalFile::from_table(table, &origin)?;
-    if let Some(k) = camera {
-        f.camera.kind = k;
-    }
-    let (net, name) = crate::model::infer::load_for(model.as_deref(), Some(f.camera.kind), true)?;
+    let (f, net, name) = EvalFile::with_model(table, &origin, camera, model.as_deref(), true)?;
     // The baseline: the camera's shipped single-frame model (none for the other cameras).
     let single = match (&baseline, f.camera.kind) {
         (Some(p), _) => Some(crate::model::infer::load(Some(p))?),
@@ -439,11 +456,7 @@ pub fn command(a: EvalArgs) -> anyhow::Result<()> {
     // Read first: a missing or foreign file is a usage error before any work.
     let versus = versus.map(|p| Versus::read(&p)).transpose()?;
     let (table, origin) = file.load(crate::commands::eval::EVAL_TOML, "pipelines/eval.toml")?;
-    let mut f = crate::commands::eval::EvalFile::from_table(table, &origin)?;
-    if let Some(k) = camera {
-        f.camera.kind = k;
-    }
-    let (net, name) = crate::model::infer::load_for(model.as_deref(), Some(f.camera.kind), false)?;
+    let (f, net, name) = EvalFile::with_model(table, &origin, camera, model.as_deref(), false)?;
     let bar = file.progress;
     let mut r = crate::commands::eval::run(&f, &net, &name, &videos, &out, bar)?;
     if let Some(v) = versus {
