@@ -34,7 +34,7 @@ pub struct TrainerSinkConfig {
     #[serde(default = "d_true")]
     pub augment: bool,
     /// As the training file's `data.burst_ends`.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "crate::train::is_zero")]
     pub burst_ends: f64,
     #[serde(default = "d_ckpt")]
     pub checkpoint_every: usize,

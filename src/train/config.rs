@@ -24,7 +24,7 @@ pub struct DataConfig {
     pub burst_ends: f64,
 }
 
-fn is_zero(v: &f64) -> bool {
+pub(crate) fn is_zero(v: &f64) -> bool {
     *v == 0.0
 }
 
