@@ -45,6 +45,11 @@ def _toml(value):
     raise TypeError(f"override value {value!r}: expected a number, string, bool, list or dict")
 
 
+def _sets(overrides):
+    """``{"key.path": value}`` overrides as ``--set key.path=value`` strings."""
+    return [f"{k}={_toml(v)}" for k, v in (overrides or {}).items()]
+
+
 def _worker():
     """(worker id, number of workers) of the torch DataLoader worker we run in, else (0, 1)."""
     if importlib.util.find_spec("torch") is None:
@@ -128,13 +133,10 @@ class CodedBlurDataset(_Base):
         self.failed = []
         # Check the settings and list the inputs now (every error named, in the caller rather
         # than in a worker), without starting a thread: DataLoader's forked workers start clean.
-        self._inputs = _native.check(self.paths, self.config, self._sets())
-
-    def _sets(self):
-        return [f"{k}={_toml(v)}" for k, v in self.overrides.items()]
+        self._inputs = _native.check(self.paths, self.config, _sets(self.overrides))
 
     def _stream(self, index, count):
-        return _native.Stream(self.paths, self.config, self._sets(), index, count, self.dtype == "float32", self.on_failure)
+        return _native.Stream(self.paths, self.config, _sets(self.overrides), index, count, self.dtype == "float32", self.on_failure)
 
     def task(self):
         """(task index, task count) of the calling process and DataLoader worker."""
@@ -232,9 +234,8 @@ def evaluate(videos, out, model=None, camera=None, overrides=None, overwrite=Fal
     """
     if isinstance(videos, (str, os.PathLike)):
         videos = [videos]
-    sets = [f"{k}={_toml(v)}" for k, v in (overrides or {}).items()]
     text = _native.evaluate([os.fspath(v) for v in videos], os.fspath(out),
-                            None if model is None else os.fspath(model), camera, sets, bool(overwrite))
+                            None if model is None else os.fspath(model), camera, _sets(overrides), bool(overwrite))
     return json.loads(text)
 
 
